@@ -1,0 +1,382 @@
+"""Front-to-back compositing of tile lists, with a memory-light custom VJP.
+
+Per pixel, the Gaussians of its tile are walked nearest first (3DGS numerics):
+  q = [dx dy] conic [dx dy]^T, alpha = min(alpha_clamp, o exp(-q/2)); alpha < 1/255 or q < 0 is
+  skipped; when T (1 - alpha) would drop under 1e-4 the pixel stops before that Gaussian.
+Outputs per pixel: colour sum_k w(T_k) c_k alpha_k T_k (weights from `wabe.Blend`), final
+transmittance T, and accumulated depth sum_k d_k alpha_k T_k (depth and T use standard weights).
+
+`composite` walks the list in a `lax.while_loop` whose trip count is the longest list actually used
+(not the capacity), a few slots per iteration. Its custom VJP walks the lists front to back again,
+recomputing T exactly as the forward did, and gets the suffix sums the gradient needs as
+(total from the forward) - (running prefix) instead of dividing T back out; per-slot gradients are
+summed over the tile's pixels immediately, so memory is O(tiles x capacity x params), never
+O(pixels x capacity). `composite_reference` is the same function written densely with `cumprod`
+for autodiff, used to test the custom VJP.
+
+Packed per-Gaussian parameters, (N, 7 + C): mean x, mean y, conic a, b, c, opacity, depth, colour.
+Pixels are laid out per tile: (num_tiles, 256, ...), tile-major in row order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from gae_jax import wabe
+from gae_jax.projection import ALPHA_THRESHOLD
+from gae_jax.tiles import TILE_SIZE
+
+TRANSMITTANCE_MIN = 1e-4
+PIXELS_PER_TILE = TILE_SIZE * TILE_SIZE
+NUM_GEOMETRY_PARAMS = 7  # mean (2), conic (3), opacity, depth
+
+
+@dataclasses.dataclass(frozen=True)
+class CompositeConfig:
+    """Static settings of the compositor (hashable, part of the jit cache key).
+
+    Attributes:
+      blend: colour weighting (`wabe.Blend`).
+      alpha_clamp: upper bound on alpha (0.99 as in Inria 3DGS, so 1 - alpha >= 0.01).
+      tiles_x, tiles_y: tile grid.
+      unroll: list slots processed per loop iteration.
+      front_contributors: how many first contributors of a pixel count for the visibility weight
+        (0: the visibility statistic is not computed).
+      visibility_beta: beta of the visibility weight exp(-beta (1 - T)) alpha.
+    """
+
+    blend: wabe.Blend
+    alpha_clamp: float
+    tiles_x: int
+    tiles_y: int
+    unroll: int = 4
+    front_contributors: int = 0
+    visibility_beta: float = wabe.PAPER_BETA
+
+
+def pixel_centres(tiles_x: int, tiles_y: int, dtype=jnp.float32) -> jax.Array:
+    """(num_tiles, 256, 2) pixel-centre coordinates (x, y) in the per-tile layout."""
+    ty, tx = jnp.meshgrid(jnp.arange(tiles_y, dtype=dtype), jnp.arange(tiles_x, dtype=dtype),
+                          indexing="ij")
+    py, px = jnp.meshgrid(jnp.arange(TILE_SIZE, dtype=dtype), jnp.arange(TILE_SIZE, dtype=dtype),
+                          indexing="ij")
+    x = tx.reshape(-1, 1) * TILE_SIZE + px.reshape(1, -1) + 0.5
+    y = ty.reshape(-1, 1) * TILE_SIZE + py.reshape(1, -1) + 0.5
+    return jnp.stack([x, y], axis=-1)
+
+
+def tiles_to_image(values: jax.Array, tiles_x: int, tiles_y: int, width: int,
+                   height: int) -> jax.Array:
+    """(num_tiles, 256, ...) per-tile layout -> (height, width, ...) image."""
+    rest = values.shape[2:]
+    v = values.reshape((tiles_y, tiles_x, TILE_SIZE, TILE_SIZE) + rest)
+    v = jnp.moveaxis(v, 2, 1).reshape((tiles_y * TILE_SIZE, tiles_x * TILE_SIZE) + rest)
+    return v[:height, :width]
+
+
+def _gather_lists(table: jax.Array, packed: jax.Array, unroll: int) -> jax.Array:
+    """(T, cap) indices -> (T, cap', K) parameters, cap' a multiple of `unroll`; -1 -> zeros."""
+    pad_slots = (-table.shape[1]) % unroll
+    table = jnp.pad(table, ((0, 0), (0, pad_slots)), constant_values=-1)
+    padded = jnp.concatenate([packed, jnp.zeros((1, packed.shape[1]), packed.dtype)])
+    return padded[jnp.where(table < 0, packed.shape[0], table)]
+
+
+def _alpha(pix, g, alpha_clamp):
+    """Alpha of one list slot at every pixel of every tile.
+
+    Args:
+      pix: (T, 256, 2) pixel centres; g: (T, K) packed parameters of this slot's Gaussians.
+    Returns dx, dy, q, gauss = exp(-q/2), alpha (each (T, 256)), and valid (T, 256) bool.
+    """
+    dx = pix[..., 0] - g[:, None, 0]
+    dy = pix[..., 1] - g[:, None, 1]
+    q = g[:, None, 2] * dx * dx + 2.0 * g[:, None, 3] * dx * dy + g[:, None, 4] * dy * dy
+    gauss = jnp.exp(-0.5 * q)
+    alpha = jnp.minimum(alpha_clamp, g[:, None, 5] * gauss)
+    valid = (alpha >= ALPHA_THRESHOLD) & (q >= 0.0)
+    return dx, dy, q, gauss, alpha, valid
+
+
+def _step_masks(transmittance, done, alpha, valid):
+    """Which pixels composite this slot, which stop at it, and the transmittance after it."""
+    t_next = transmittance * (1.0 - alpha)
+    live = valid & ~done
+    stop = live & (t_next < TRANSMITTANCE_MIN)
+    use = live & ~stop
+    return use, done | stop, jnp.where(use, t_next, transmittance)
+
+
+def _moment_basis(dtype) -> jax.Array:
+    """(256, 6) tile-local pixel-centre moments [1, x, y, x^2, x y, y^2] in the per-tile layout."""
+    py, px = jnp.meshgrid(jnp.arange(TILE_SIZE, dtype=dtype), jnp.arange(TILE_SIZE, dtype=dtype),
+                          indexing="ij")
+    x = px.reshape(-1) + 0.5
+    y = py.reshape(-1) + 0.5
+    return jnp.stack([jnp.ones_like(x), x, y, x * x, x * y, y * y], axis=-1)
+
+
+def _tile_origins(tiles_x: int, tiles_y: int, dtype) -> jax.Array:
+    """(T, 2) pixel coordinates of each tile's top-left corner."""
+    ty, tx = jnp.meshgrid(jnp.arange(tiles_y, dtype=dtype), jnp.arange(tiles_x, dtype=dtype),
+                          indexing="ij")
+    return jnp.stack([tx.reshape(-1), ty.reshape(-1)], axis=-1) * TILE_SIZE
+
+
+def _forward_loop(cfg: CompositeConfig, lists, num_slots, num_channels, with_g_total):
+    """Runs the front-to-back walk; returns per-pixel sums and per-(tile, slot) statistics.
+
+    Colour sums are (C, T, 256) planes so that every per-pixel operation is elementwise.
+    """
+    pix = pixel_centres(cfg.tiles_x, cfg.tiles_y, lists.dtype)
+    num_tiles, cap = lists.shape[0], lists.shape[1]
+    shape = (num_tiles, PIXELS_PER_TILE)
+    blend = cfg.blend
+    carry0 = dict(
+        j=jnp.int32(0),
+        t=jnp.ones(shape, lists.dtype),
+        done=jnp.zeros(shape, bool),
+        color=jnp.zeros(shape + (num_channels,), lists.dtype),
+        depth=jnp.zeros(shape, lists.dtype),
+        g_total=jnp.zeros(shape + (num_channels,), lists.dtype) if with_g_total else None,
+        seen=jnp.zeros(shape, jnp.int32) if cfg.front_contributors > 0 else None,
+        pixels=jnp.zeros((num_tiles, cap), lists.dtype),
+        visibility=jnp.zeros((num_tiles, cap), lists.dtype) if cfg.front_contributors else None,
+    )
+
+    def cond(c):
+        return (c["j"] < num_slots) & jnp.any(~c["done"])
+
+    def body(c):
+        c = dict(c)
+        block = lax.dynamic_slice_in_dim(lists, c["j"], cfg.unroll, axis=1)
+        uses, vis, weights, contribs, dgs = [], [], [], [], []
+        for u in range(cfg.unroll):
+            g = block[:, u]
+            _, _, _, _, alpha, valid = _alpha(pix, g, cfg.alpha_clamp)
+            t = c["t"]
+            use, done, t_next = _step_masks(t, c["done"], alpha, valid)
+            contrib = jnp.where(use, alpha * t, 0.0)
+            weighted = contrib * blend.weight(t) if blend.weights_forward else contrib
+            dg = contrib * blend.weight_times_t_derivative(t) if with_g_total else contrib
+            # Materialise this slot's per-pixel weights once; without the barrier XLA fuses the
+            # alpha computation (and its exp) into every consumer separately.
+            weighted, contrib, dg, use, done, t_next = lax.optimization_barrier(
+                (weighted, contrib, dg, use, done, t_next))
+            weights.append(weighted)
+            contribs.append(contrib)
+            dgs.append(dg)
+            uses.append(use)
+            if cfg.front_contributors > 0:
+                front = use & (c["seen"] < cfg.front_contributors)
+                vis.append(jnp.where(front, jnp.exp(-cfg.visibility_beta * (1.0 - t)) * alpha,
+                                     0.0))
+                c["seen"] = c["seen"] + use.astype(jnp.int32)
+            c["t"], c["done"] = t_next, done
+        # One pass over the accumulators per block of slots (they are the memory traffic).
+        colours = block[:, :, NUM_GEOMETRY_PARAMS:]
+        c["color"] = c["color"] + sum(
+            w[..., None] * colours[:, None, u] for u, w in enumerate(weights))
+        c["depth"] = c["depth"] + sum(w * block[:, None, u, 6] for u, w in enumerate(contribs))
+        if with_g_total:
+            c["g_total"] = c["g_total"] + sum(
+                w[..., None] * colours[:, None, u] for u, w in enumerate(dgs))
+        counts = jnp.einsum("tup,p->tu", jnp.stack(uses, axis=1).astype(lists.dtype),
+                            jnp.ones((PIXELS_PER_TILE,), lists.dtype))
+        c["pixels"] = lax.dynamic_update_slice_in_dim(c["pixels"], counts, c["j"], axis=1)
+        if cfg.front_contributors > 0:
+            c["visibility"] = lax.dynamic_update_slice_in_dim(
+                c["visibility"], jnp.max(jnp.stack(vis, axis=1), axis=-1), c["j"], axis=1)
+        c["j"] = c["j"] + cfg.unroll
+        return c
+
+    return lax.while_loop(cond, body, carry0)
+
+
+def _scatter_to_gaussians(per_slot, table, num_gaussians, reduce="sum"):
+    """(T, cap', ...) per-slot values -> (N, ...) per-Gaussian, summed (or maxed) over tiles."""
+    cap = table.shape[1]
+    flat_index = jnp.where(table < 0, num_gaussians, table).reshape(-1)
+    values = per_slot[:, :cap].reshape((-1,) + per_slot.shape[2:])
+    seg = jax.ops.segment_sum if reduce == "sum" else jax.ops.segment_max
+    out = seg(values, flat_index, num_segments=num_gaussians + 1)
+    if reduce == "max":
+        out = jnp.maximum(out, 0.0)
+    return out[:num_gaussians]
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _composite(cfg: CompositeConfig, table, num_slots, packed):
+    out, _ = _composite_fwd(cfg, table, num_slots, packed)
+    return out
+
+
+def _composite_fwd(cfg, table, num_slots, packed):
+    num_channels = packed.shape[1] - NUM_GEOMETRY_PARAMS
+    lists = _gather_lists(table, packed, cfg.unroll)
+    with_g_total = cfg.blend.mode == "wabe"
+    c = _forward_loop(cfg, lists, num_slots, num_channels, with_g_total)
+    n = packed.shape[0]
+    visibility = (_scatter_to_gaussians(c["visibility"], table, n, reduce="max")
+                  if cfg.front_contributors > 0 else jnp.zeros((n,), packed.dtype))
+    stats = (_scatter_to_gaussians(c["pixels"], table, n), visibility)
+    out = (c["color"], c["t"], c["depth"], stats)
+    g_total = c["g_total"] if with_g_total else c["color"]
+    return out, (table, num_slots, packed, c["t"], g_total, c["depth"])
+
+
+def _composite_bwd(cfg, residuals, cotangents):
+    """Front-to-back gradient walk.
+
+    With per-pixel cotangents gC (colour), gD (depth sum) and gT (final transmittance), the
+    gradient of the loss with respect to the alpha of the j-th contributor is
+      dL/da_j = f_j (gC . c_j) + gD d_j T_j - (K - R_j) / (1 - a_j),
+    where f_j = w(T_j) T_j (or T_j), K = gC . G + gD D + gT T_final is fixed per pixel
+    (G = sum_k c_k a_k T_k d[w(T)T]/dT at T_k, D the depth sum) and R_j is the running prefix of
+    the same sum up to and including j. Only the scalar R is carried per pixel. Per-tile sums
+    over pixels are contractions with the tile-local moment basis [1, x, y, x^2, xy, y^2].
+    """
+    table, num_slots, packed, t_final, g_total, d_total = residuals
+    g_color, g_t, g_depth, _ = cotangents
+    lists = _gather_lists(table, packed, cfg.unroll)
+    pix = pixel_centres(cfg.tiles_x, cfg.tiles_y, lists.dtype)
+    basis = _moment_basis(lists.dtype)
+    origins = _tile_origins(cfg.tiles_x, cfg.tiles_y, lists.dtype)
+    num_tiles, cap, k = lists.shape
+    num_channels = k - NUM_GEOMETRY_PARAMS
+    shape = (num_tiles, PIXELS_PER_TILE)
+    blend = cfg.blend
+    g_planes = jnp.moveaxis(g_color, -1, 0)  # (C, T, 256)
+    k_total = jnp.sum(g_color * g_total, axis=-1) + g_depth * d_total + g_t * t_final
+
+    def cond(c):
+        return (c["j"] < num_slots) & jnp.any(~c["done"])
+
+    def body(c):
+        c = dict(c)
+        block = lax.dynamic_slice_in_dim(lists, c["j"], cfg.unroll, axis=1)
+        moment_planes, colour_planes = [], []
+        for u in range(cfg.unroll):
+            g = block[:, u]
+            _, _, _, gauss, alpha, valid = _alpha(pix, g, cfg.alpha_clamp)
+            t = c["t"]
+            use, done, t_next = _step_masks(t, c["done"], alpha, valid)
+            alpha, gauss, use, done, t_next = lax.optimization_barrier(
+                (alpha, gauss, use, done, t_next))
+            c["done"], c["t"] = done, t_next
+            gc_dot = g_planes[0] * g[:, None, NUM_GEOMETRY_PARAMS]
+            for ch in range(1, num_channels):
+                gc_dot = gc_dot + g_planes[ch] * g[:, None, NUM_GEOMETRY_PARAMS + ch]
+            depth = g[:, None, 6]
+            w = blend.weight(t)
+            f = t * w if blend.weights_forward else t
+            contrib = jnp.where(use, alpha * t, 0.0)
+            c["running"] = c["running"] + contrib * (
+                blend.weight_times_t_derivative(t) * gc_dot + g_depth * depth)
+            d_alpha = (f * gc_dot + g_depth * depth * t
+                       - (k_total - c["running"]) / (1.0 - alpha))
+            colour_weight = jnp.where(use, alpha * f, 0.0)
+            depth_weight = g_depth * contrib
+            if blend.mode == "wabe_grad":
+                d_alpha, colour_weight, depth_weight = d_alpha * w, colour_weight * w, depth_weight * w
+            unclamped = use & (g[:, None, 5] * gauss < cfg.alpha_clamp)
+            d_alpha = jnp.where(unclamped, d_alpha, 0.0)
+            moment_planes += [-0.5 * alpha * d_alpha, d_alpha * gauss, depth_weight]
+            colour_planes.append(colour_weight)
+        # (T, 3U, 256) x (256, 6): every per-tile pixel sum of this block in one contraction.
+        moments = jnp.einsum("tkp,pb->tkb", jnp.stack(moment_planes, axis=1), basis)
+        moments = moments.reshape(num_tiles, cfg.unroll, 3, 6)
+        colour_grad = jnp.einsum("tup,ctp->tuc", jnp.stack(colour_planes, axis=1), g_planes)
+        m = moments[:, :, 0]  # sums of d_q times [1, x, y, xx, xy, yy]
+        mx = block[..., 0] - origins[:, None, 0]
+        my = block[..., 1] - origins[:, None, 1]
+        s_x = m[..., 1] - mx * m[..., 0]
+        s_y = m[..., 2] - my * m[..., 0]
+        s_xx = m[..., 3] - 2.0 * mx * m[..., 1] + mx * mx * m[..., 0]
+        s_xy = m[..., 4] - mx * m[..., 2] - my * m[..., 1] + mx * my * m[..., 0]
+        s_yy = m[..., 5] - 2.0 * my * m[..., 2] + my * my * m[..., 0]
+        a_, b_, c_ = block[..., 2], block[..., 3], block[..., 4]
+        grads = jnp.concatenate([jnp.stack([
+            -2.0 * (a_ * s_x + b_ * s_y),
+            -2.0 * (b_ * s_x + c_ * s_y),
+            s_xx, 2.0 * s_xy, s_yy,
+            moments[:, :, 1, 0],
+            moments[:, :, 2, 0],
+        ], axis=-1), colour_grad], axis=-1)
+        c["grads"] = lax.dynamic_update_slice_in_dim(c["grads"], grads, c["j"], axis=1)
+        c["j"] = c["j"] + cfg.unroll
+        return c
+
+    carry0 = dict(
+        j=jnp.int32(0),
+        t=jnp.ones(shape, lists.dtype),
+        done=jnp.zeros(shape, bool),
+        running=jnp.zeros(shape, lists.dtype),
+        grads=jnp.zeros((num_tiles, cap, k), lists.dtype),
+    )
+    c = lax.while_loop(cond, body, carry0)
+    d_packed = _scatter_to_gaussians(c["grads"], table, packed.shape[0])
+    return None, None, d_packed
+
+
+_composite.defvjp(_composite_fwd, _composite_bwd)
+
+
+def composite(cfg: CompositeConfig, table: jax.Array, num_slots: jax.Array, packed: jax.Array):
+    """Composites tile lists.
+
+    Args:
+      table: (num_tiles, capacity) int32 Gaussian indices, nearest first, -1 padding.
+      num_slots: () int32 how many leading slots of `table` are in use.
+      packed: (N, 7 + C) packed parameters (see module docstring).
+    Returns:
+      color (T, 256, C), transmittance (T, 256), depth (T, 256) in the per-tile layout, and
+      (pixels (N,), visibility (N,)): per Gaussian, the number of pixels it was composited into
+      and its visibility weight (max over pixels of exp(-beta (1-T)) alpha among each pixel's
+      first `front_contributors` contributors). Statistics carry no gradient.
+    """
+    color, t, depth, stats = _composite(cfg, table, num_slots, packed)
+    return color, t, depth, jax.tree_util.tree_map(lax.stop_gradient, stats)
+
+
+def _scale_gradient(x, scale):
+    """Identity in value; the gradient reaching x is multiplied by `scale` (no gradient)."""
+    scale = lax.stop_gradient(scale)
+    return x * scale + lax.stop_gradient(x * (1.0 - scale))
+
+
+def composite_reference(cfg: CompositeConfig, table: jax.Array, packed: jax.Array):
+    """Dense (T, 256, capacity) version of `composite` for autodiff; test-sized inputs only."""
+    lists = _gather_lists(table, packed, 1)
+    pix = pixel_centres(cfg.tiles_x, cfg.tiles_y, lists.dtype)
+    g = lists[:, None, :, :]  # (T, 1, cap, K)
+    dx = pix[..., 0:1] - g[..., 0]
+    dy = pix[..., 1:2] - g[..., 1]
+    q = g[..., 2] * dx * dx + 2.0 * g[..., 3] * dx * dy + g[..., 4] * dy * dy
+    alpha = jnp.minimum(cfg.alpha_clamp, g[..., 5] * jnp.exp(-0.5 * q))
+    valid = (alpha >= ALPHA_THRESHOLD) & (q >= 0.0)
+    t_after = jnp.cumprod(jnp.where(valid, 1.0 - alpha, 1.0), axis=-1)
+    use = valid & (t_after >= TRANSMITTANCE_MIN)
+    one_minus = jnp.where(use, 1.0 - alpha, 1.0)
+    t_before = jnp.cumprod(jnp.concatenate([jnp.ones_like(one_minus[..., :1]),
+                                            one_minus[..., :-1]], axis=-1), axis=-1)
+    blend = cfg.blend
+    colour = jnp.broadcast_to(g[..., NUM_GEOMETRY_PARAMS:], alpha.shape + (g.shape[-1] - 7,))
+    depth = jnp.broadcast_to(g[..., 6], alpha.shape)
+    if blend.mode == "wabe_grad":
+        w = blend.weight(t_before)
+        alpha = _scale_gradient(alpha, w)
+        colour = _scale_gradient(colour, w[..., None])
+        depth = _scale_gradient(depth, w)
+        one_minus = jnp.where(use, 1.0 - alpha, 1.0)
+        t_before = jnp.cumprod(jnp.concatenate([jnp.ones_like(one_minus[..., :1]),
+                                                one_minus[..., :-1]], axis=-1), axis=-1)
+    contrib = jnp.where(use, alpha * t_before, 0.0)
+    weighted = contrib * blend.weight(t_before) if blend.weights_forward else contrib
+    color = jnp.sum(weighted[..., None] * colour, axis=2)
+    return color, jnp.prod(one_minus, axis=-1), jnp.sum(contrib * depth, axis=-1)

@@ -1,0 +1,124 @@
+"""EWA projection of 3D Gaussians to screen-space ellipses (3DGS / gsplat numerics).
+
+Conventions: quaternions are wxyz and normalised here; scales are linear (already activated);
+camera axes are OpenCV (see `camera`). The 2D covariance is J W Sigma W^T J^T + dilation * I with J
+the perspective Jacobian at the (frustum-clamped) camera-space mean, as in gsplat. A Gaussian is
+culled when its depth is below `near`, its opacity cannot reach the 1/255 cut-off, or its screen
+extent misses the image.
+
+Screen extent ("opacity-aware"): a pixel can only receive alpha >= 1/255 when
+o exp(-q/2) >= 1/255, i.e. q <= 2 ln(255 o). The extent is the bounding box of that ellipse,
+half-widths sqrt(2 ln(255 o) Sigma2d_xx) and sqrt(2 ln(255 o) Sigma2d_yy). Unlike the classic
+3-sigma square, no pixel outside it can receive a contribution, so tile culling loses nothing
+(and faint Gaussians touch fewer tiles).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from gae_jax.camera import Camera
+
+ALPHA_THRESHOLD = 1.0 / 255.0
+NEAR_PLANE = 0.01
+COV2D_DILATION = 0.3
+# The Jacobian is evaluated no further than this fraction of the half field of view outside the
+# image (gsplat/3DGS use 1.3 tan(fov/2)), which keeps far off-screen Gaussians from exploding.
+FRUSTUM_MARGIN = 0.3
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Projected:
+    """Per-Gaussian screen-space quantities, all (N, ...).
+
+    Attributes:
+      means2d: (N, 2) pixel coordinates (x, y) of the projected mean.
+      conics: (N, 3) upper triangle (a, b, c) of the inverse 2D covariance.
+      depths: (N,) camera-space z.
+      opacities: (N,) opacity in [0, 1].
+      extents: (N, 2) half-widths in pixels of the region that can receive alpha >= 1/255.
+      visible: (N,) bool, False for culled Gaussians.
+    """
+
+    means2d: jax.Array
+    conics: jax.Array
+    depths: jax.Array
+    opacities: jax.Array
+    extents: jax.Array
+    visible: jax.Array
+
+    @property
+    def radii(self) -> jax.Array:
+        """(N,) int32 screen radius in pixels (ceil of the larger half-width), 0 if culled."""
+        r = jnp.ceil(jnp.max(jnp.minimum(self.extents, 1e6), axis=-1)).astype(jnp.int32)
+        return jnp.where(self.visible, r, 0)
+
+
+def quat_to_rotmat(quats: jax.Array) -> jax.Array:
+    """(N, 4) wxyz quaternions (any norm) -> (N, 3, 3) rotation matrices."""
+    norm = jnp.sqrt(jnp.sum(quats * quats, axis=-1, keepdims=True))
+    # A zero quaternion has no direction; treating it as the identity keeps gradients finite.
+    safe = jnp.where(norm > 0, quats / jnp.where(norm > 0, norm, 1.0),
+                     jnp.asarray([1.0, 0.0, 0.0, 0.0], quats.dtype))
+    w, x, y, z = safe[..., 0], safe[..., 1], safe[..., 2], safe[..., 3]
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def covariance_3d(quats: jax.Array, scales: jax.Array) -> jax.Array:
+    """(N, 4) wxyz, (N, 3) linear scales -> (N, 3, 3) covariance R S S^T R^T."""
+    m = quat_to_rotmat(quats) * scales[..., None, :]
+    return m @ jnp.swapaxes(m, -1, -2)
+
+
+def project(means: jax.Array, quats: jax.Array, scales: jax.Array, opacities: jax.Array,
+            camera: Camera, *, near: float = NEAR_PLANE,
+            dilation: float = COV2D_DILATION) -> Projected:
+    """Projects (N, 3) world means with (N, 4) quats, (N, 3) scales, (N,) opacities."""
+    fx, fy, cx, cy = (camera.intrinsics[i] for i in range(4))
+    p = camera.world_to_camera(means)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    in_front = z >= near
+    z_safe = jnp.where(in_front, z, 1.0)
+
+    half_fov_x = 0.5 * camera.width / fx
+    half_fov_y = 0.5 * camera.height / fy
+    tx = z_safe * jnp.clip(x / z_safe, -(cx / fx + FRUSTUM_MARGIN * half_fov_x),
+                           (camera.width - cx) / fx + FRUSTUM_MARGIN * half_fov_x)
+    ty = z_safe * jnp.clip(y / z_safe, -(cy / fy + FRUSTUM_MARGIN * half_fov_y),
+                           (camera.height - cy) / fy + FRUSTUM_MARGIN * half_fov_y)
+    zero = jnp.zeros_like(z_safe)
+    jac = jnp.stack([
+        jnp.stack([fx / z_safe, zero, -fx * tx / (z_safe * z_safe)], axis=-1),
+        jnp.stack([zero, fy / z_safe, -fy * ty / (z_safe * z_safe)], axis=-1),
+    ], axis=-2)
+    cov_cam = camera.rotation @ covariance_3d(quats, scales) @ camera.rotation.T
+    cov2d = jac @ cov_cam @ jnp.swapaxes(jac, -1, -2)
+    a = cov2d[:, 0, 0] + dilation
+    b = cov2d[:, 0, 1]
+    c = cov2d[:, 1, 1] + dilation
+    det = a * c - b * b
+    det_ok = det > 0
+    det_safe = jnp.where(det_ok, det, 1.0)
+    conics = jnp.stack([c / det_safe, -b / det_safe, a / det_safe], axis=-1)
+    means2d = jnp.stack([fx * x / z_safe + cx, fy * y / z_safe + cy], axis=-1)
+
+    reach = opacities > ALPHA_THRESHOLD
+    q_max = 2.0 * jnp.log(255.0 * jnp.where(reach, opacities, 1.0))
+    ext = jax.lax.stop_gradient(jnp.sqrt(jnp.maximum(
+        q_max[:, None] * jnp.stack([a, c], axis=-1), 0.0)))
+    m2 = jax.lax.stop_gradient(means2d)
+    on_screen = ((m2[:, 0] + ext[:, 0] > 0) & (m2[:, 0] - ext[:, 0] < camera.width)
+                 & (m2[:, 1] + ext[:, 1] > 0) & (m2[:, 1] - ext[:, 1] < camera.height))
+    finite = jnp.all(jnp.isfinite(m2), axis=-1) & jnp.all(jnp.isfinite(ext), axis=-1)
+    visible = in_front & det_ok & reach & on_screen & finite
+    return Projected(means2d=means2d, conics=conics, depths=z, opacities=opacities,
+                     extents=jnp.where(visible[:, None], ext, 0.0), visible=visible)
