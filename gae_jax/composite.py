@@ -6,8 +6,9 @@ Per pixel, the Gaussians of its tile are walked nearest first (3DGS numerics):
 Outputs per pixel: colour sum_k w(T_k) c_k alpha_k T_k (weights from `wabe.Blend`), final
 transmittance T, and accumulated depth sum_k d_k alpha_k T_k (depth and T use standard weights).
 
-`composite` walks the list in a `lax.while_loop` whose trip count is the longest list actually used
-(not the capacity), a few slots per iteration. Its custom VJP walks the lists front to back again,
+`composite` groups tiles into chunks of similar list length (longest first) and walks each chunk in
+a `lax.while_loop` whose trip count is that chunk's longest list (not the capacity), a few slots
+per iteration; chunks run one after another (`lax.map`) so their per-pixel state stays in cache. Its custom VJP walks the lists front to back again,
 recomputing T exactly as the forward did, and gets the suffix sums the gradient needs as
 (total from the forward) - (running prefix) instead of dividing T back out; per-slot gradients are
 summed over the tile's pixels immediately, so memory is O(tiles x capacity x params), never
@@ -45,6 +46,9 @@ class CompositeConfig:
       alpha_clamp: upper bound on alpha (0.99 as in Inria 3DGS, so 1 - alpha >= 0.01).
       tiles_x, tiles_y: tile grid.
       unroll: list slots processed per loop iteration.
+      tiles_per_chunk: tiles walked together; chunks run one after another so that their
+        per-pixel state stays in cache, and tiles are grouped by list length so that each chunk
+        stops after its own longest list.
       front_contributors: how many first contributors of a pixel count for the visibility weight
         (0: the visibility statistic is not computed).
       visibility_beta: beta of the visibility weight exp(-beta (1 - T)) alpha.
@@ -55,6 +59,7 @@ class CompositeConfig:
     tiles_x: int
     tiles_y: int
     unroll: int = 4
+    tiles_per_chunk: int = 32
     front_contributors: int = 0
     visibility_beta: float = wabe.PAPER_BETA
 
@@ -79,20 +84,12 @@ def tiles_to_image(values: jax.Array, tiles_x: int, tiles_y: int, width: int,
     return v[:height, :width]
 
 
-def _gather_lists(table: jax.Array, packed: jax.Array, unroll: int) -> jax.Array:
-    """(T, cap) indices -> (T, cap', K) parameters, cap' a multiple of `unroll`; -1 -> zeros."""
-    pad_slots = (-table.shape[1]) % unroll
-    table = jnp.pad(table, ((0, 0), (0, pad_slots)), constant_values=-1)
-    padded = jnp.concatenate([packed, jnp.zeros((1, packed.shape[1]), packed.dtype)])
-    return padded[jnp.where(table < 0, packed.shape[0], table)]
-
-
 def _alpha(pix, g, alpha_clamp):
-    """Alpha of one list slot at every pixel of every tile.
+    """Alpha of one list slot at every pixel of every tile of a chunk.
 
     Args:
       pix: (T, 256, 2) pixel centres; g: (T, K) packed parameters of this slot's Gaussians.
-    Returns dx, dy, q, gauss = exp(-q/2), alpha (each (T, 256)), and valid (T, 256) bool.
+    Returns gauss = exp(-q/2), alpha (each (T, 256)), and valid (T, 256) bool.
     """
     dx = pix[..., 0] - g[:, None, 0]
     dy = pix[..., 1] - g[:, None, 1]
@@ -100,7 +97,7 @@ def _alpha(pix, g, alpha_clamp):
     gauss = jnp.exp(-0.5 * q)
     alpha = jnp.minimum(alpha_clamp, g[:, None, 5] * gauss)
     valid = (alpha >= ALPHA_THRESHOLD) & (q >= 0.0)
-    return dx, dy, q, gauss, alpha, valid
+    return gauss, alpha, valid
 
 
 def _step_masks(transmittance, done, alpha, valid):
@@ -121,32 +118,76 @@ def _moment_basis(dtype) -> jax.Array:
     return jnp.stack([jnp.ones_like(x), x, y, x * x, x * y, y * y], axis=-1)
 
 
-def _tile_origins(tiles_x: int, tiles_y: int, dtype) -> jax.Array:
-    """(T, 2) pixel coordinates of each tile's top-left corner."""
-    ty, tx = jnp.meshgrid(jnp.arange(tiles_y, dtype=dtype), jnp.arange(tiles_x, dtype=dtype),
-                          indexing="ij")
-    return jnp.stack([tx.reshape(-1), ty.reshape(-1)], axis=-1) * TILE_SIZE
+@dataclasses.dataclass(frozen=True)
+class _Chunking:
+    """How tiles are grouped: `order` (num_chunks * tiles_per_chunk,) tile ids, longest lists first,
+    padded with the id `num_tiles` (an empty tile)."""
+
+    order: jax.Array
+    num_chunks: int
+    tiles_per_chunk: int
+    num_tiles: int
+
+    def split(self, per_tile, fill=0):
+        """(T, ...) per-tile values -> (chunks, tiles_per_chunk, ...) in chunk order."""
+        pad = jnp.full((1,) + per_tile.shape[1:], fill, per_tile.dtype)
+        padded = jnp.concatenate([per_tile, pad])
+        return padded[self.order].reshape(
+            (self.num_chunks, self.tiles_per_chunk) + per_tile.shape[1:])
+
+    def merge(self, per_chunk):
+        """Inverse of `split`: (chunks, tiles_per_chunk, ...) -> (T, ...)."""
+        flat = per_chunk.reshape((-1,) + per_chunk.shape[2:])
+        out = jnp.zeros((self.num_tiles + 1,) + flat.shape[1:], flat.dtype)
+        return out.at[self.order].set(flat)[: self.num_tiles]
 
 
-def _forward_loop(cfg: CompositeConfig, lists, num_slots, num_channels, with_g_total):
-    """Runs the front-to-back walk; returns per-pixel sums and per-(tile, slot) statistics.
+def _chunking(kept, tiles_per_chunk: int) -> _Chunking:
+    """Groups tiles into chunks of similar list length (longest first)."""
+    num_tiles = kept.shape[0]
+    per_chunk = max(1, min(tiles_per_chunk, num_tiles))
+    num_chunks = -(-num_tiles // per_chunk)
+    pad = num_chunks * per_chunk - num_tiles
+    # Negated lengths sort descending; ties keep tile order (a stable integer sort).
+    _, order = lax.sort((-kept, jnp.arange(num_tiles, dtype=jnp.int32)), num_keys=1)
+    order = jnp.concatenate([order, jnp.full((pad,), num_tiles, jnp.int32)])
+    return _Chunking(order=order, num_chunks=num_chunks, tiles_per_chunk=per_chunk,
+                     num_tiles=num_tiles)
 
-    Colour sums are (C, T, 256) planes so that every per-pixel operation is elementwise.
+
+def _chunk_inputs(cfg, table, kept, packed):
+    """Per-chunk lists (C, t, cap', K), pixel centres (C, t, 256, 2), origins (C, t, 2), slots (C,)."""
+    chunks = _chunking(kept, cfg.tiles_per_chunk)
+    pad_slots = (-table.shape[1]) % cfg.unroll
+    table = jnp.pad(table, ((0, 0), (0, pad_slots)), constant_values=-1)
+    rows = jnp.concatenate([packed, jnp.zeros((1, packed.shape[1]), packed.dtype)])
+    lists = rows[jnp.where(table < 0, packed.shape[0], table)]
+    pix = pixel_centres(cfg.tiles_x, cfg.tiles_y, packed.dtype)
+    origins = pix[:, 0, :] - 0.5
+    slots = jnp.max(chunks.split(kept), axis=1)
+    return chunks, (chunks.split(lists), chunks.split(pix), chunks.split(origins), slots)
+
+
+def _forward_chunk(cfg: CompositeConfig, lists, pix, num_slots, num_channels, with_g_total):
+    """Front-to-back walk over one chunk of tiles.
+
+    Returns per-pixel colour (t, 256, C), transmittance, depth sum, the colour-gradient total G
+    (WABE only), and per-slot pixel counts and visibility weights (t, cap').
     """
-    pix = pixel_centres(cfg.tiles_x, cfg.tiles_y, lists.dtype)
     num_tiles, cap = lists.shape[0], lists.shape[1]
     shape = (num_tiles, PIXELS_PER_TILE)
     blend = cfg.blend
+    dtype = lists.dtype
     carry0 = dict(
         j=jnp.int32(0),
-        t=jnp.ones(shape, lists.dtype),
+        t=jnp.ones(shape, dtype),
         done=jnp.zeros(shape, bool),
-        color=jnp.zeros(shape + (num_channels,), lists.dtype),
-        depth=jnp.zeros(shape, lists.dtype),
-        g_total=jnp.zeros(shape + (num_channels,), lists.dtype) if with_g_total else None,
+        color=jnp.zeros(shape + (num_channels,), dtype),
+        depth=jnp.zeros(shape, dtype),
+        g_total=jnp.zeros(shape + (num_channels,), dtype) if with_g_total else None,
         seen=jnp.zeros(shape, jnp.int32) if cfg.front_contributors > 0 else None,
-        pixels=jnp.zeros((num_tiles, cap), lists.dtype),
-        visibility=jnp.zeros((num_tiles, cap), lists.dtype) if cfg.front_contributors else None,
+        pixels=jnp.zeros((num_tiles, cap), dtype),
+        visibility=jnp.zeros((num_tiles, cap), dtype) if cfg.front_contributors > 0 else None,
     )
 
     def cond(c):
@@ -158,7 +199,7 @@ def _forward_loop(cfg: CompositeConfig, lists, num_slots, num_channels, with_g_t
         uses, vis, weights, contribs, dgs = [], [], [], [], []
         for u in range(cfg.unroll):
             g = block[:, u]
-            _, _, _, _, alpha, valid = _alpha(pix, g, cfg.alpha_clamp)
+            _, alpha, valid = _alpha(pix, g, cfg.alpha_clamp)
             t = c["t"]
             use, done, t_next = _step_masks(t, c["done"], alpha, valid)
             contrib = jnp.where(use, alpha * t, 0.0)
@@ -178,7 +219,6 @@ def _forward_loop(cfg: CompositeConfig, lists, num_slots, num_channels, with_g_t
                                      0.0))
                 c["seen"] = c["seen"] + use.astype(jnp.int32)
             c["t"], c["done"] = t_next, done
-        # One pass over the accumulators per block of slots (they are the memory traffic).
         colours = block[:, :, NUM_GEOMETRY_PARAMS:]
         c["color"] = c["color"] + sum(
             w[..., None] * colours[:, None, u] for u, w in enumerate(weights))
@@ -186,8 +226,7 @@ def _forward_loop(cfg: CompositeConfig, lists, num_slots, num_channels, with_g_t
         if with_g_total:
             c["g_total"] = c["g_total"] + sum(
                 w[..., None] * colours[:, None, u] for u, w in enumerate(dgs))
-        counts = jnp.einsum("tup,p->tu", jnp.stack(uses, axis=1).astype(lists.dtype),
-                            jnp.ones((PIXELS_PER_TILE,), lists.dtype))
+        counts = jnp.sum(jnp.stack(uses, axis=1), axis=-1, dtype=dtype)
         c["pixels"] = lax.dynamic_update_slice_in_dim(c["pixels"], counts, c["j"], axis=1)
         if cfg.front_contributors > 0:
             c["visibility"] = lax.dynamic_update_slice_in_dim(
@@ -195,7 +234,8 @@ def _forward_loop(cfg: CompositeConfig, lists, num_slots, num_channels, with_g_t
         c["j"] = c["j"] + cfg.unroll
         return c
 
-    return lax.while_loop(cond, body, carry0)
+    c = lax.while_loop(cond, body, carry0)
+    return c["color"], c["t"], c["depth"], c["g_total"], c["pixels"], c["visibility"]
 
 
 def _scatter_to_gaussians(per_slot, table, num_gaussians, reduce="sum"):
@@ -211,48 +251,44 @@ def _scatter_to_gaussians(per_slot, table, num_gaussians, reduce="sum"):
 
 
 @partial(jax.custom_vjp, nondiff_argnums=(0,))
-def _composite(cfg: CompositeConfig, table, num_slots, packed):
-    out, _ = _composite_fwd(cfg, table, num_slots, packed)
+def _composite(cfg: CompositeConfig, table, kept, packed):
+    out, _ = _composite_fwd(cfg, table, kept, packed)
     return out
 
 
-def _composite_fwd(cfg, table, num_slots, packed):
+def _composite_fwd(cfg, table, kept, packed):
     num_channels = packed.shape[1] - NUM_GEOMETRY_PARAMS
-    lists = _gather_lists(table, packed, cfg.unroll)
     with_g_total = cfg.blend.mode == "wabe"
-    c = _forward_loop(cfg, lists, num_slots, num_channels, with_g_total)
+    chunks, (lists, pix, _, slots) = _chunk_inputs(cfg, table, kept, packed)
+    color, t, depth, g_total, pixels, vis = lax.map(
+        lambda a: _forward_chunk(cfg, a[0], a[1], a[2], num_channels, with_g_total),
+        (lists, pix, slots))
+    color, t, depth, pixels = (chunks.merge(x) for x in (color, t, depth, pixels))
     n = packed.shape[0]
-    visibility = (_scatter_to_gaussians(c["visibility"], table, n, reduce="max")
+    visibility = (_scatter_to_gaussians(chunks.merge(vis), table, n, reduce="max")
                   if cfg.front_contributors > 0 else jnp.zeros((n,), packed.dtype))
-    stats = (_scatter_to_gaussians(c["pixels"], table, n), visibility)
-    out = (c["color"], c["t"], c["depth"], stats)
-    g_total = c["g_total"] if with_g_total else c["color"]
-    return out, (table, num_slots, packed, c["t"], g_total, c["depth"])
+    stats = (_scatter_to_gaussians(pixels, table, n), visibility)
+    g_total = chunks.merge(g_total) if with_g_total else color
+    return (color, t, depth, stats), (table, kept, packed, t, g_total, depth)
 
 
-def _composite_bwd(cfg, residuals, cotangents):
-    """Front-to-back gradient walk.
+def _backward_chunk(cfg, lists, pix, origins, num_slots, cot):
+    """Gradient walk over one chunk; returns per-slot packed-parameter gradients (t, cap', K).
 
-    With per-pixel cotangents gC (colour), gD (depth sum) and gT (final transmittance), the
-    gradient of the loss with respect to the alpha of the j-th contributor is
-      dL/da_j = f_j (gC . c_j) + gD d_j T_j - (K - R_j) / (1 - a_j),
-    where f_j = w(T_j) T_j (or T_j), K = gC . G + gD D + gT T_final is fixed per pixel
-    (G = sum_k c_k a_k T_k d[w(T)T]/dT at T_k, D the depth sum) and R_j is the running prefix of
-    the same sum up to and including j. Only the scalar R is carried per pixel. Per-tile sums
-    over pixels are contractions with the tile-local moment basis [1, x, y, x^2, xy, y^2].
+    `cot` holds this chunk's per-pixel gC (t, 256, C), gD (t, 256) and K (see `_composite_bwd`).
+    Per slot only three planes are formed -- d_q = dL/dq, the colour weight and the depth weight
+    -- and every per-tile pixel sum is a matrix product: d_q with the moment basis gives the mean
+    and conic gradients (and, since alpha = o exp(-q/2), the opacity gradient -2 sum(d_q) / o),
+    the weights with [gC | gD] give the colour and depth gradients.
     """
-    table, num_slots, packed, t_final, g_total, d_total = residuals
-    g_color, g_t, g_depth, _ = cotangents
-    lists = _gather_lists(table, packed, cfg.unroll)
-    pix = pixel_centres(cfg.tiles_x, cfg.tiles_y, lists.dtype)
-    basis = _moment_basis(lists.dtype)
-    origins = _tile_origins(cfg.tiles_x, cfg.tiles_y, lists.dtype)
+    g_color, g_depth, k_total = cot
     num_tiles, cap, k = lists.shape
     num_channels = k - NUM_GEOMETRY_PARAMS
     shape = (num_tiles, PIXELS_PER_TILE)
     blend = cfg.blend
-    g_planes = jnp.moveaxis(g_color, -1, 0)  # (C, T, 256)
-    k_total = jnp.sum(g_color * g_total, axis=-1) + g_depth * d_total + g_t * t_final
+    basis = _moment_basis(lists.dtype)
+    g_planes = [g_color[..., ch] for ch in range(num_channels)]
+    g_targets = jnp.concatenate([g_color, g_depth[..., None]], axis=-1)  # (t, 256, C + 1)
 
     def cond(c):
         return (c["j"] < num_slots) & jnp.any(~c["done"])
@@ -260,39 +296,37 @@ def _composite_bwd(cfg, residuals, cotangents):
     def body(c):
         c = dict(c)
         block = lax.dynamic_slice_in_dim(lists, c["j"], cfg.unroll, axis=1)
-        moment_planes, colour_planes = [], []
+        dq_planes, weight_planes = [], []
         for u in range(cfg.unroll):
             g = block[:, u]
-            _, _, _, gauss, alpha, valid = _alpha(pix, g, cfg.alpha_clamp)
+            _, alpha, valid = _alpha(pix, g, cfg.alpha_clamp)
             t = c["t"]
             use, done, t_next = _step_masks(t, c["done"], alpha, valid)
-            alpha, gauss, use, done, t_next = lax.optimization_barrier(
-                (alpha, gauss, use, done, t_next))
+            alpha, use, done, t_next = lax.optimization_barrier((alpha, use, done, t_next))
             c["done"], c["t"] = done, t_next
-            gc_dot = g_planes[0] * g[:, None, NUM_GEOMETRY_PARAMS]
-            for ch in range(1, num_channels):
-                gc_dot = gc_dot + g_planes[ch] * g[:, None, NUM_GEOMETRY_PARAMS + ch]
+            gc_dot = sum(g_planes[ch] * g[:, None, NUM_GEOMETRY_PARAMS + ch]
+                         for ch in range(num_channels))
             depth = g[:, None, 6]
             w = blend.weight(t)
             f = t * w if blend.weights_forward else t
             contrib = jnp.where(use, alpha * t, 0.0)
-            c["running"] = c["running"] + contrib * (
+            running = c["running"] + contrib * (
                 blend.weight_times_t_derivative(t) * gc_dot + g_depth * depth)
-            d_alpha = (f * gc_dot + g_depth * depth * t
-                       - (k_total - c["running"]) / (1.0 - alpha))
+            d_alpha = (f * gc_dot + g_depth * depth * t - (k_total - running) / (1.0 - alpha))
             colour_weight = jnp.where(use, alpha * f, 0.0)
-            depth_weight = g_depth * contrib
+            depth_weight = contrib
             if blend.mode == "wabe_grad":
-                d_alpha, colour_weight, depth_weight = d_alpha * w, colour_weight * w, depth_weight * w
-            unclamped = use & (g[:, None, 5] * gauss < cfg.alpha_clamp)
-            d_alpha = jnp.where(unclamped, d_alpha, 0.0)
-            moment_planes += [-0.5 * alpha * d_alpha, d_alpha * gauss, depth_weight]
-            colour_planes.append(colour_weight)
-        # (T, 3U, 256) x (256, 6): every per-tile pixel sum of this block in one contraction.
-        moments = jnp.einsum("tkp,pb->tkb", jnp.stack(moment_planes, axis=1), basis)
-        moments = moments.reshape(num_tiles, cfg.unroll, 3, 6)
-        colour_grad = jnp.einsum("tup,ctp->tuc", jnp.stack(colour_planes, axis=1), g_planes)
-        m = moments[:, :, 0]  # sums of d_q times [1, x, y, xx, xy, yy]
+                d_alpha, colour_weight, depth_weight = (d_alpha * w, colour_weight * w,
+                                                        depth_weight * w)
+            # A clamped alpha does not depend on the Gaussian's opacity or shape.
+            d_q = jnp.where(use & (alpha < cfg.alpha_clamp), -0.5 * alpha * d_alpha, 0.0)
+            c["running"], d_q, colour_weight, depth_weight = lax.optimization_barrier(
+                (running, d_q, colour_weight, depth_weight))
+            dq_planes.append(d_q)
+            weight_planes += [colour_weight, depth_weight]
+        m = jnp.stack(dq_planes, axis=1) @ basis  # (t, U, 6): d_q x [1, x, y, xx, xy, yy]
+        targets = jnp.einsum("tkp,tpc->tkc", jnp.stack(weight_planes, axis=1), g_targets)
+        targets = targets.reshape(num_tiles, cfg.unroll, 2, num_channels + 1)
         mx = block[..., 0] - origins[:, None, 0]
         my = block[..., 1] - origins[:, None, 1]
         s_x = m[..., 1] - mx * m[..., 0]
@@ -300,14 +334,13 @@ def _composite_bwd(cfg, residuals, cotangents):
         s_xx = m[..., 3] - 2.0 * mx * m[..., 1] + mx * mx * m[..., 0]
         s_xy = m[..., 4] - mx * m[..., 2] - my * m[..., 1] + mx * my * m[..., 0]
         s_yy = m[..., 5] - 2.0 * my * m[..., 2] + my * my * m[..., 0]
-        a_, b_, c_ = block[..., 2], block[..., 3], block[..., 4]
+        a_, b_, c_, o_ = block[..., 2], block[..., 3], block[..., 4], block[..., 5]
+        d_opacity = -2.0 * m[..., 0] / jnp.where(o_ > 0, o_, 1.0)
         grads = jnp.concatenate([jnp.stack([
             -2.0 * (a_ * s_x + b_ * s_y),
             -2.0 * (b_ * s_x + c_ * s_y),
-            s_xx, 2.0 * s_xy, s_yy,
-            moments[:, :, 1, 0],
-            moments[:, :, 2, 0],
-        ], axis=-1), colour_grad], axis=-1)
+            s_xx, 2.0 * s_xy, s_yy, d_opacity, targets[:, :, 1, num_channels],
+        ], axis=-1), targets[:, :, 0, :num_channels]], axis=-1)
         c["grads"] = lax.dynamic_update_slice_in_dim(c["grads"], grads, c["j"], axis=1)
         c["j"] = c["j"] + cfg.unroll
         return c
@@ -319,28 +352,49 @@ def _composite_bwd(cfg, residuals, cotangents):
         running=jnp.zeros(shape, lists.dtype),
         grads=jnp.zeros((num_tiles, cap, k), lists.dtype),
     )
-    c = lax.while_loop(cond, body, carry0)
-    d_packed = _scatter_to_gaussians(c["grads"], table, packed.shape[0])
+    return lax.while_loop(cond, body, carry0)["grads"]
+
+
+def _composite_bwd(cfg, residuals, cotangents):
+    """Front-to-back gradient walk.
+
+    With per-pixel cotangents gC (colour), gD (depth sum) and gT (final transmittance), the
+    gradient of the loss with respect to the alpha of the j-th contributor is
+      dL/da_j = f_j (gC . c_j) + gD d_j T_j - (K - R_j) / (1 - a_j),
+    where f_j = w(T_j) T_j (or T_j), K = gC . G + gD D + gT T_final is fixed per pixel
+    (G = sum_k c_k a_k T_k d[w(T)T]/dT at T_k, D the depth sum) and R_j is the running prefix of
+    the same sum up to and including j. Only the scalar R is carried per pixel. Per-tile sums
+    over pixels of d_q (dx, dy, dx^2, ...) are products with the tile-local moment basis.
+    """
+    table, kept, packed, t_final, g_total, d_total = residuals
+    g_color, g_t, g_depth, _ = cotangents
+    k_total = jnp.sum(g_color * g_total, axis=-1) + g_depth * d_total + g_t * t_final
+    chunks, (lists, pix, origins, slots) = _chunk_inputs(cfg, table, kept, packed)
+    cot = tuple(chunks.split(x) for x in (g_color, g_depth, k_total))
+    grads = lax.map(lambda a: _backward_chunk(cfg, a[0], a[1], a[2], a[3], a[4]),
+                    (lists, pix, origins, slots, cot))
+    d_packed = _scatter_to_gaussians(chunks.merge(grads), table, packed.shape[0])
     return None, None, d_packed
 
 
 _composite.defvjp(_composite_fwd, _composite_bwd)
 
 
-def composite(cfg: CompositeConfig, table: jax.Array, num_slots: jax.Array, packed: jax.Array):
+def composite(cfg: CompositeConfig, table: jax.Array, kept: jax.Array, packed: jax.Array):
     """Composites tile lists.
 
     Args:
       table: (num_tiles, capacity) int32 Gaussian indices, nearest first, -1 padding.
-      num_slots: () int32 how many leading slots of `table` are in use.
+      kept: (num_tiles,) int32 number of valid entries per row of `table`.
       packed: (N, 7 + C) packed parameters (see module docstring).
     Returns:
       color (T, 256, C), transmittance (T, 256), depth (T, 256) in the per-tile layout, and
       (pixels (N,), visibility (N,)): per Gaussian, the number of pixels it was composited into
       and its visibility weight (max over pixels of exp(-beta (1-T)) alpha among each pixel's
-      first `front_contributors` contributors). Statistics carry no gradient.
+      first `front_contributors` contributors; zeros when that is 0). Statistics carry no
+      gradient.
     """
-    color, t, depth, stats = _composite(cfg, table, num_slots, packed)
+    color, t, depth, stats = _composite(cfg, table, kept, packed)
     return color, t, depth, jax.tree_util.tree_map(lax.stop_gradient, stats)
 
 
@@ -352,7 +406,8 @@ def _scale_gradient(x, scale):
 
 def composite_reference(cfg: CompositeConfig, table: jax.Array, packed: jax.Array):
     """Dense (T, 256, capacity) version of `composite` for autodiff; test-sized inputs only."""
-    lists = _gather_lists(table, packed, 1)
+    rows = jnp.concatenate([packed, jnp.zeros((1, packed.shape[1]), packed.dtype)])
+    lists = rows[jnp.where(table < 0, packed.shape[0], table)]
     pix = pixel_centres(cfg.tiles_x, cfg.tiles_y, lists.dtype)
     g = lists[:, None, :, :]  # (T, 1, cap, K)
     dx = pix[..., 0:1] - g[..., 0]

@@ -19,6 +19,7 @@ import numpy as np
 
 from gae_jax import splat, wabe
 from gae_jax.camera import make_camera
+from gae_jax.compile import fast_jit
 from gae_jax.io import atomic_write_bytes
 
 
@@ -71,7 +72,7 @@ def main(argv=None):
         parser.error("--num and --size must be positive")
 
     g, camera = random_frustum_scene(args.num, args.size, args.size, args.seed)
-    render = jax.jit(lambda g, b: splat.render(g, camera, background=b, tile_capacity=512))
+    render = fast_jit(lambda g, b: splat.render(g, camera, background=b, tile_capacity=512))
     background = jnp.ones(3, jnp.float32)
     start = time.perf_counter()
     out = jax.block_until_ready(render(g, background))

@@ -126,7 +126,7 @@ def colors_towards(gaussians: Gaussians, camera: Camera) -> jax.Array:
 def render(gaussians: Gaussians, camera: Camera, *, background=None,
            blend: wabe.Blend = wabe.standard(), tile_capacity: int = DEFAULT_TILE_CAPACITY,
            max_pairs: int | None = None, alpha_clamp: float = DEFAULT_ALPHA_CLAMP,
-           screen_offset: jax.Array | None = None, unroll: int = 4,
+           screen_offset: jax.Array | None = None, unroll: int = 4, tiles_per_chunk: int = 32,
            visibility_contributors: int = 0,
            visibility_beta: float = wabe.PAPER_BETA) -> RenderOutput:
     """Renders Gaussians into camera.height x camera.width.
@@ -142,6 +142,7 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
       screen_offset: optional (N, 2) added to the projected means; pass zeros and differentiate
         with respect to it to obtain the screen-space mean gradient used for densification.
       unroll: list slots per compositor loop iteration (speed only).
+      tiles_per_chunk: tiles the compositor walks together (speed only).
       visibility_contributors: when > 0, compute `stats.visibility` over each pixel's first this
         many contributors (the official code uses 10); 0 skips it (zeros) and saves time.
       visibility_beta: beta of the visibility statistic.
@@ -170,10 +171,11 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
     packed = jnp.where(proj.visible[:, None], packed, 0.0)
     cfg = comp.CompositeConfig(blend=blend, alpha_clamp=float(alpha_clamp),
                                tiles_x=bins.tiles_x, tiles_y=bins.tiles_y, unroll=int(unroll),
+                               tiles_per_chunk=int(tiles_per_chunk),
                                front_contributors=int(visibility_contributors),
                                visibility_beta=float(visibility_beta))
     color, transmittance, depth_acc, (pixels, visibility) = comp.composite(
-        cfg, bins.table, bins.num_slots, packed)
+        cfg, bins.table, bins.kept, packed)
 
     def to_image(x):
         return comp.tiles_to_image(x, bins.tiles_x, bins.tiles_y, camera.width, camera.height)

@@ -1,0 +1,121 @@
+"""Renderer speed and memory: forward and forward+backward on the specified random scene.
+
+    python benchmarks/render.py [--configs 2000x128 50000x256 50000x512] [--repeats 7]
+
+Prints one JSON object per configuration (and a summary list at the end): median milliseconds
+after warm-up, (pixel, Gaussian) pair evaluations per second, overflowed tiles, tile capacity and
+peak RSS. Each configuration runs in its own process so that peak RSS is its own. The tile capacity
+is the smallest multiple of 32 that holds every tile's list (so the image is exact; overflow is
+reported and must be 0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+
+# For orientation only (from the issue, not measured by this script): a straightforward CPU
+# implementation of gsplat's algorithm on this machine, seconds (forward, forward + backward).
+GSPLAT_CPU_REFERENCE_S = {"50000x256": (0.44, 1.5), "50000x512": (0.5, 2.2)}
+
+
+def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
+            options: str) -> dict:
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from gae_jax import splat, wabe
+    from gae_jax.compile import compiler_options
+    from gae_jax.demo import random_frustum_scene
+    from gae_jax.projection import project
+    from gae_jax.tiles import bin_gaussians
+
+    blend = {"standard": wabe.standard(), "wabe": wabe.wabe(), "wabe_grad": wabe.wabe_grad()}[
+        blend_name]
+    g, camera = random_frustum_scene(num, size, size, seed=0)
+    p = project(g.means, g.quats, g.scales, g.opacities, camera)
+    probe = bin_gaussians(p.means2d, p.extents, p.depths, p.visible, size, size, 1)
+    max_count = int(probe.counts.max())
+    capacity = max(32, -(-max_count // 32) * 32)
+
+    def image(g):
+        return splat.render(g, camera, blend=blend, tile_capacity=capacity, unroll=unroll)
+
+    opts = compiler_options() if options == "fast" else None
+    forward = jax.jit(lambda g: image(g).image, compiler_options=opts)
+    weights = jax.random.uniform(jax.random.PRNGKey(0), (size, size, 3))
+    grad = jax.jit(jax.grad(lambda g: jnp.sum(image(g).image * weights)), compiler_options=opts)
+
+    def median_ms(fn):
+        jax.block_until_ready(fn(g))
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            jax.block_until_ready(fn(g))
+            times.append(time.perf_counter() - start)
+        return 1e3 * float(np.median(times))
+
+    fwd_ms = median_ms(forward)
+    fwd_bwd_ms = median_ms(grad)
+    out = jax.jit(image)(g)
+    pairs = int(jnp.sum(probe.counts)) * 256  # pixel-Gaussian pairs the tile lists imply
+    walked = int(out.stats.num_slots) * 256 * int(probe.counts.shape[0])
+    return dict(
+        gaussians=num, width=size, height=size, blend=blend_name, unroll=unroll,
+        compiler_options=opts or {},
+        tile_capacity=capacity, max_tile_count=max_count,
+        overflow_tiles=int(out.stats.overflow_tiles), dropped_pairs=int(out.stats.dropped_pairs),
+        forward_ms=round(fwd_ms, 2), forward_backward_ms=round(fwd_bwd_ms, 2),
+        tile_pairs_per_s_forward=round(pairs / (fwd_ms * 1e-3)),
+        walked_pairs_per_s_forward=round(walked / (fwd_ms * 1e-3)),
+        peak_rss_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
+        devices=str(jax.devices()), jax_version=jax.__version__,
+    )
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--configs", nargs="+", default=["2000x128", "50000x256", "50000x512"],
+                        help="NUMxSIZE entries")
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--blend", default="standard", choices=["standard", "wabe", "wabe_grad"])
+    parser.add_argument("--unroll", type=int, default=4)
+    parser.add_argument("--options", nargs="+", default=["fast", "default"],
+                        choices=["fast", "default"],
+                        help="fast: gae_jax.compile.compiler_options(); default: plain jax.jit. "
+                             "Both run, interleaved per configuration, by default.")
+    parser.add_argument("--one", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.one:
+        num, size = (int(v) for v in args.one.split("x"))
+        print(json.dumps(run_one(num, size, args.repeats, args.blend, args.unroll,
+                                 args.options[0])))
+        return
+    results = []
+    for config in args.configs:
+        for options in args.options:
+            cmd = [sys.executable, os.path.abspath(__file__), "--one", config, "--repeats",
+                   str(args.repeats), "--blend", args.blend, "--unroll", str(args.unroll),
+                   "--options", options]
+            line = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+            result = json.loads(line.strip().splitlines()[-1])
+            result["options"] = options
+            reference = GSPLAT_CPU_REFERENCE_S.get(config)
+            if reference:
+                result["speedup_vs_reference_forward"] = round(
+                    1e3 * reference[0] / result["forward_ms"], 2)
+                result["speedup_vs_reference_forward_backward"] = round(
+                    1e3 * reference[1] / result["forward_backward_ms"], 2)
+            print(json.dumps(result), flush=True)
+            results.append(result)
+    print(json.dumps(dict(reference_seconds=GSPLAT_CPU_REFERENCE_S, results=results), indent=1))
+
+
+if __name__ == "__main__":
+    main()
