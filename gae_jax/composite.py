@@ -8,12 +8,15 @@ transmittance T, and accumulated depth sum_k d_k alpha_k T_k (depth and T use st
 
 `composite` groups tiles into chunks of similar list length (longest first) and walks each chunk in
 a `lax.while_loop` whose trip count is that chunk's longest list (not the capacity), a few slots
-per iteration; chunks run one after another (`lax.map`) so their per-pixel state stays in cache. Its custom VJP walks the lists front to back again,
-recomputing T exactly as the forward did, and gets the suffix sums the gradient needs as
-(total from the forward) - (running prefix) instead of dividing T back out; per-slot gradients are
-summed over the tile's pixels immediately, so memory is O(tiles x capacity x params), never
-O(pixels x capacity). `composite_reference` is the same function written densely with `cumprod`
-for autodiff, used to test the custom VJP.
+per iteration; chunks run one after another (`lax.map`) so their per-pixel state stays in cache.
+The forward keeps, per pixel, only the final transmittance and one past its last composited slot.
+The custom VJP walks each list back to front, as the reference CUDA backward does: a slot counts
+iff its alpha passes the cut-offs and it lies before that last slot (no termination logic is
+replayed), T is recovered as T_{j+1} / (1 - a_j) (a_j <= 0.99 keeps this stable), and the suffix
+sums the gradient needs are accumulated on the way. Per-slot gradients are summed over the tile's
+pixels immediately, so memory is O(tiles x capacity x params), never O(pixels x capacity).
+`composite_reference` is the same function written densely with `cumprod` for autodiff, used to
+test the custom VJP.
 
 Packed per-Gaussian parameters, (N, 7 + C): mean x, mean y, conic a, b, c, opacity, depth, colour.
 Pixels are laid out per tile: (num_tiles, 256, ...), tile-major in row order.
@@ -168,11 +171,11 @@ def _chunk_inputs(cfg, table, kept, packed):
     return chunks, (chunks.split(lists), chunks.split(pix), chunks.split(origins), slots)
 
 
-def _forward_chunk(cfg: CompositeConfig, lists, pix, num_slots, num_channels, with_g_total):
+def _forward_chunk(cfg: CompositeConfig, lists, pix, num_slots, num_channels):
     """Front-to-back walk over one chunk of tiles.
 
-    Returns per-pixel colour (t, 256, C), transmittance, depth sum, the colour-gradient total G
-    (WABE only), and per-slot pixel counts and visibility weights (t, cap').
+    Returns per-pixel colour (t, 256, C), transmittance, depth sum, one past the last slot that
+    was composited (int32), and per-slot pixel counts and visibility weights (t, cap').
     """
     num_tiles, cap = lists.shape[0], lists.shape[1]
     shape = (num_tiles, PIXELS_PER_TILE)
@@ -184,7 +187,7 @@ def _forward_chunk(cfg: CompositeConfig, lists, pix, num_slots, num_channels, wi
         done=jnp.zeros(shape, bool),
         color=jnp.zeros(shape + (num_channels,), dtype),
         depth=jnp.zeros(shape, dtype),
-        g_total=jnp.zeros(shape + (num_channels,), dtype) if with_g_total else None,
+        last=jnp.zeros(shape, jnp.int32),
         seen=jnp.zeros(shape, jnp.int32) if cfg.front_contributors > 0 else None,
         pixels=jnp.zeros((num_tiles, cap), dtype),
         visibility=jnp.zeros((num_tiles, cap), dtype) if cfg.front_contributors > 0 else None,
@@ -196,7 +199,7 @@ def _forward_chunk(cfg: CompositeConfig, lists, pix, num_slots, num_channels, wi
     def body(c):
         c = dict(c)
         block = lax.dynamic_slice_in_dim(lists, c["j"], cfg.unroll, axis=1)
-        uses, vis, weights, contribs, dgs = [], [], [], [], []
+        uses, vis, weights, contribs = [], [], [], []
         for u in range(cfg.unroll):
             g = block[:, u]
             _, alpha, valid = _alpha(pix, g, cfg.alpha_clamp)
@@ -204,14 +207,11 @@ def _forward_chunk(cfg: CompositeConfig, lists, pix, num_slots, num_channels, wi
             use, done, t_next = _step_masks(t, c["done"], alpha, valid)
             contrib = jnp.where(use, alpha * t, 0.0)
             weighted = contrib * blend.weight(t) if blend.weights_forward else contrib
-            dg = contrib * blend.weight_times_t_derivative(t) if with_g_total else contrib
-            # Materialise this slot's per-pixel weights once; without the barrier XLA fuses the
-            # alpha computation (and its exp) into every consumer separately.
-            weighted, contrib, dg, use, done, t_next = lax.optimization_barrier(
-                (weighted, contrib, dg, use, done, t_next))
+            c["last"] = jnp.where(use, c["j"] + (u + 1), c["last"])
+            weighted, contrib, use, done, t_next = lax.optimization_barrier(
+                (weighted, contrib, use, done, t_next))
             weights.append(weighted)
             contribs.append(contrib)
-            dgs.append(dg)
             uses.append(use)
             if cfg.front_contributors > 0:
                 front = use & (c["seen"] < cfg.front_contributors)
@@ -223,9 +223,6 @@ def _forward_chunk(cfg: CompositeConfig, lists, pix, num_slots, num_channels, wi
         c["color"] = c["color"] + sum(
             w[..., None] * colours[:, None, u] for u, w in enumerate(weights))
         c["depth"] = c["depth"] + sum(w * block[:, None, u, 6] for u, w in enumerate(contribs))
-        if with_g_total:
-            c["g_total"] = c["g_total"] + sum(
-                w[..., None] * colours[:, None, u] for u, w in enumerate(dgs))
         counts = jnp.sum(jnp.stack(uses, axis=1), axis=-1, dtype=dtype)
         c["pixels"] = lax.dynamic_update_slice_in_dim(c["pixels"], counts, c["j"], axis=1)
         if cfg.front_contributors > 0:
@@ -235,7 +232,7 @@ def _forward_chunk(cfg: CompositeConfig, lists, pix, num_slots, num_channels, wi
         return c
 
     c = lax.while_loop(cond, body, carry0)
-    return c["color"], c["t"], c["depth"], c["g_total"], c["pixels"], c["visibility"]
+    return c["color"], c["t"], c["depth"], c["last"], c["pixels"], c["visibility"]
 
 
 def _scatter_to_gaussians(per_slot, table, num_gaussians, reduce="sum"):
@@ -258,61 +255,70 @@ def _composite(cfg: CompositeConfig, table, kept, packed):
 
 def _composite_fwd(cfg, table, kept, packed):
     num_channels = packed.shape[1] - NUM_GEOMETRY_PARAMS
-    with_g_total = cfg.blend.mode == "wabe"
     chunks, (lists, pix, _, slots) = _chunk_inputs(cfg, table, kept, packed)
-    color, t, depth, g_total, pixels, vis = lax.map(
-        lambda a: _forward_chunk(cfg, a[0], a[1], a[2], num_channels, with_g_total),
-        (lists, pix, slots))
-    color, t, depth, pixels = (chunks.merge(x) for x in (color, t, depth, pixels))
+    color, t, depth, last, pixels, vis = lax.map(
+        lambda a: _forward_chunk(cfg, a[0], a[1], a[2], num_channels), (lists, pix, slots))
+    color, t, depth, last, pixels = (chunks.merge(x) for x in (color, t, depth, last, pixels))
     n = packed.shape[0]
     visibility = (_scatter_to_gaussians(chunks.merge(vis), table, n, reduce="max")
                   if cfg.front_contributors > 0 else jnp.zeros((n,), packed.dtype))
     stats = (_scatter_to_gaussians(pixels, table, n), visibility)
-    g_total = chunks.merge(g_total) if with_g_total else color
-    return (color, t, depth, stats), (table, kept, packed, t, g_total, depth)
+    return (color, t, depth, stats), (table, kept, packed, t, last)
 
 
-def _backward_chunk(cfg, lists, pix, origins, num_slots, cot):
-    """Gradient walk over one chunk; returns per-slot packed-parameter gradients (t, cap', K).
+def _backward_chunk(cfg, lists, pix, origins, last, cot):
+    """Back-to-front gradient walk over one chunk (as the reference CUDA backward does).
 
-    `cot` holds this chunk's per-pixel gC (t, 256, C), gD (t, 256) and K (see `_composite_bwd`).
-    Per slot only three planes are formed -- d_q = dL/dq, the colour weight and the depth weight
-    -- and every per-tile pixel sum is a matrix product: d_q with the moment basis gives the mean
-    and conic gradients (and, since alpha = o exp(-q/2), the opacity gradient -2 sum(d_q) / o),
-    the weights with [gC | gD] give the colour and depth gradients.
+    Args:
+      lists: (t, cap', K) packed parameters; pix: (t, 256, 2); origins: (t, 2) tile corners.
+      last: (t, 256) int32 one past each pixel's last composited slot (from the forward).
+      cot: this chunk's per-pixel gC (t, 256, C), gD (t, 256), gT * T_final (t, 256) and
+        T_final (t, 256).
+    Returns per-slot packed-parameter gradients (t, cap', K).
+
+    A slot j is composited at a pixel iff its alpha passes the cut-offs and j < last, so no
+    termination logic is replayed. Walking back, T_j = T_{j+1} / (1 - a_j) and the suffix
+        Q_j = gT T_final + sum_{k > j} a_k T_k (F'(T_k) gC . c_k + gD d_k)
+    give dL/da_j = f_j gC . c_j + gD d_j T_j - Q_j / (1 - a_j), with f = w(T) T for WABE (T
+    otherwise) and F' = d[f]/dT. Per slot only three planes are formed -- d_q = dL/dq and the
+    colour and depth weights -- and every per-tile pixel sum is a matrix product: d_q with the
+    moment basis gives the mean and conic gradients (and, since alpha = o exp(-q/2), the opacity
+    gradient -2 sum(d_q) / o); the weights with [gC | gD] give the colour and depth gradients.
     """
-    g_color, g_depth, k_total = cot
+    g_color, g_depth, g_t_final, t_final = cot
     num_tiles, cap, k = lists.shape
     num_channels = k - NUM_GEOMETRY_PARAMS
-    shape = (num_tiles, PIXELS_PER_TILE)
     blend = cfg.blend
     basis = _moment_basis(lists.dtype)
     g_planes = [g_color[..., ch] for ch in range(num_channels)]
     g_targets = jnp.concatenate([g_color, g_depth[..., None]], axis=-1)  # (t, 256, C + 1)
+    top = jnp.max(last)
+    top = (top + cfg.unroll - 1) // cfg.unroll * cfg.unroll
 
     def cond(c):
-        return (c["j"] < num_slots) & jnp.any(~c["done"])
+        return c["j"] > 0
 
     def body(c):
         c = dict(c)
-        block = lax.dynamic_slice_in_dim(lists, c["j"], cfg.unroll, axis=1)
-        dq_planes, weight_planes = [], []
-        for u in range(cfg.unroll):
+        start = c["j"] - cfg.unroll
+        block = lax.dynamic_slice_in_dim(lists, start, cfg.unroll, axis=1)
+        dq_planes, weight_planes = [None] * cfg.unroll, [None] * (2 * cfg.unroll)
+        for u in reversed(range(cfg.unroll)):
             g = block[:, u]
             _, alpha, valid = _alpha(pix, g, cfg.alpha_clamp)
-            t = c["t"]
-            use, done, t_next = _step_masks(t, c["done"], alpha, valid)
-            alpha, use, done, t_next = lax.optimization_barrier((alpha, use, done, t_next))
-            c["done"], c["t"] = done, t_next
+            use = valid & (start + u < last)
+            one_minus = 1.0 - alpha
+            t = jnp.where(use, c["t"] / one_minus, c["t"])
+            alpha, use, t = lax.optimization_barrier((alpha, use, t))
             gc_dot = sum(g_planes[ch] * g[:, None, NUM_GEOMETRY_PARAMS + ch]
                          for ch in range(num_channels))
             depth = g[:, None, 6]
             w = blend.weight(t)
             f = t * w if blend.weights_forward else t
             contrib = jnp.where(use, alpha * t, 0.0)
-            running = c["running"] + contrib * (
-                blend.weight_times_t_derivative(t) * gc_dot + g_depth * depth)
-            d_alpha = (f * gc_dot + g_depth * depth * t - (k_total - running) / (1.0 - alpha))
+            d_alpha = f * gc_dot + g_depth * depth * t - c["q"] / one_minus
+            q = c["q"] + contrib * (blend.weight_times_t_derivative(t) * gc_dot
+                                    + g_depth * depth)
             colour_weight = jnp.where(use, alpha * f, 0.0)
             depth_weight = contrib
             if blend.mode == "wabe_grad":
@@ -320,10 +326,10 @@ def _backward_chunk(cfg, lists, pix, origins, num_slots, cot):
                                                         depth_weight * w)
             # A clamped alpha does not depend on the Gaussian's opacity or shape.
             d_q = jnp.where(use & (alpha < cfg.alpha_clamp), -0.5 * alpha * d_alpha, 0.0)
-            c["running"], d_q, colour_weight, depth_weight = lax.optimization_barrier(
-                (running, d_q, colour_weight, depth_weight))
-            dq_planes.append(d_q)
-            weight_planes += [colour_weight, depth_weight]
+            c["t"], c["q"], d_q, colour_weight, depth_weight = lax.optimization_barrier(
+                (t, q, d_q, colour_weight, depth_weight))
+            dq_planes[u] = d_q
+            weight_planes[2 * u], weight_planes[2 * u + 1] = colour_weight, depth_weight
         m = jnp.stack(dq_planes, axis=1) @ basis  # (t, U, 6): d_q x [1, x, y, xx, xy, yy]
         targets = jnp.einsum("tkp,tpc->tkc", jnp.stack(weight_planes, axis=1), g_targets)
         targets = targets.reshape(num_tiles, cfg.unroll, 2, num_channels + 1)
@@ -341,38 +347,27 @@ def _backward_chunk(cfg, lists, pix, origins, num_slots, cot):
             -2.0 * (b_ * s_x + c_ * s_y),
             s_xx, 2.0 * s_xy, s_yy, d_opacity, targets[:, :, 1, num_channels],
         ], axis=-1), targets[:, :, 0, :num_channels]], axis=-1)
-        c["grads"] = lax.dynamic_update_slice_in_dim(c["grads"], grads, c["j"], axis=1)
-        c["j"] = c["j"] + cfg.unroll
+        c["grads"] = lax.dynamic_update_slice_in_dim(c["grads"], grads, start, axis=1)
+        c["j"] = start
         return c
 
     carry0 = dict(
-        j=jnp.int32(0),
-        t=jnp.ones(shape, lists.dtype),
-        done=jnp.zeros(shape, bool),
-        running=jnp.zeros(shape, lists.dtype),
+        j=top.astype(jnp.int32),
+        t=t_final,
+        q=g_t_final,
         grads=jnp.zeros((num_tiles, cap, k), lists.dtype),
     )
     return lax.while_loop(cond, body, carry0)["grads"]
 
 
 def _composite_bwd(cfg, residuals, cotangents):
-    """Front-to-back gradient walk.
-
-    With per-pixel cotangents gC (colour), gD (depth sum) and gT (final transmittance), the
-    gradient of the loss with respect to the alpha of the j-th contributor is
-      dL/da_j = f_j (gC . c_j) + gD d_j T_j - (K - R_j) / (1 - a_j),
-    where f_j = w(T_j) T_j (or T_j), K = gC . G + gD D + gT T_final is fixed per pixel
-    (G = sum_k c_k a_k T_k d[w(T)T]/dT at T_k, D the depth sum) and R_j is the running prefix of
-    the same sum up to and including j. Only the scalar R is carried per pixel. Per-tile sums
-    over pixels of d_q (dx, dy, dx^2, ...) are products with the tile-local moment basis.
-    """
-    table, kept, packed, t_final, g_total, d_total = residuals
+    """Back-to-front gradient walk per chunk (see `_backward_chunk`), scattered to Gaussians."""
+    table, kept, packed, t_final, last = residuals
     g_color, g_t, g_depth, _ = cotangents
-    k_total = jnp.sum(g_color * g_total, axis=-1) + g_depth * d_total + g_t * t_final
-    chunks, (lists, pix, origins, slots) = _chunk_inputs(cfg, table, kept, packed)
-    cot = tuple(chunks.split(x) for x in (g_color, g_depth, k_total))
+    chunks, (lists, pix, origins, _) = _chunk_inputs(cfg, table, kept, packed)
+    cot = tuple(chunks.split(x) for x in (g_color, g_depth, g_t * t_final, t_final))
     grads = lax.map(lambda a: _backward_chunk(cfg, a[0], a[1], a[2], a[3], a[4]),
-                    (lists, pix, origins, slots, cot))
+                    (lists, pix, origins, chunks.split(last), cot))
     d_packed = _scatter_to_gaussians(chunks.merge(grads), table, packed.shape[0])
     return None, None, d_packed
 
