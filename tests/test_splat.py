@@ -10,7 +10,8 @@ from gae_jax import composite as comp
 from gae_jax import splat, wabe
 from gae_jax.camera import look_at_w2c, make_camera
 from gae_jax.projection import project
-from gae_jax.tiles import EXTENT_ABSOLUTE_MARGIN, EXTENT_RELATIVE_MARGIN, bin_gaussians
+from gae_jax.tiles import (EXTENT_ABSOLUTE_MARGIN, EXTENT_RELATIVE_MARGIN, bin_gaussians,
+                           depth_order)
 from tests import bruteforce
 from tests.helpers import assert_tree_finite, random_unit_cotangent
 
@@ -345,3 +346,19 @@ def test_bad_inputs_raise_clear_errors():
         wabe.Blend("soft")
     with pytest.raises(ValueError, match="capacity"):
         render(g, camera, tile_capacity=0)
+
+
+@pytest.mark.parametrize("with_ties", [False, True])
+def test_depth_order_is_depth_then_index(with_ties):
+    rng = np.random.default_rng(16)
+    n = 500
+    depths = rng.uniform(0.5, 9.0, n).astype(np.float32)
+    if with_ties:
+        depths[rng.integers(0, n, 60)] = depths[0]
+    visible = rng.uniform(size=n) > 0.2
+    order = np.asarray(jax.jit(depth_order)(jnp.asarray(depths), jnp.asarray(visible)))
+    assert sorted(order) == list(range(n))
+    vis_idx = np.flatnonzero(visible)
+    expected = vis_idx[np.lexsort((vis_idx, depths[vis_idx]))]
+    np.testing.assert_array_equal(order[: len(vis_idx)], expected)
+    assert not visible[order[len(vis_idx):]].any()
