@@ -1,0 +1,366 @@
+"""FLAME in JAX: shape/expression blendshapes, pose correctives and linear blend skinning.
+
+Conventions (as FLAME and GaussianAvatars define them): 5 joints -- 0 global (root), 1 neck,
+2 jaw, 3 left eye, 4 right eye -- with parents (-1, 0, 1, 1, 1); the pose vector is
+[global 3 | neck 3 | jaw 3 | eyes 6] as axis-angle; pose correctives are driven by (R_j - I) of the
+non-root joints, row-major, joint after joint. `lbs` works on one frame; `jax.vmap` it over frames.
+
+Files: `load_flame` reads the FLAME 2020 `generic_model.pkl` / FLAME 2023 `flame2023.pkl` pickles
+(shapedirs holds 300 identity + 100 expression columns; J_regressor may be a scipy sparse matrix;
+arrays may be chumpy objects) through a restricted unpickler that rebuilds only numpy arrays, scipy
+sparse matrices and chumpy arrays -- neither chumpy nor scipy is imported, and a pickle can never
+run code -- and our own `.npz` (`save_flame`). Nothing licence-gated ships with gae_jax.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import os
+import pickle
+from typing import Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+FLAME_PARENTS = (-1, 0, 1, 1, 1)
+JOINT_NAMES = ("global", "neck", "jaw", "eye_left", "eye_right")
+NECK_JOINT, JAW_JOINT = 1, 2
+FLAME_IDENTITY_COMPONENTS = 300  # columns of the pickle's shapedirs before the expression ones
+# smplx/FLAME take the rotation angle as |theta + 1e-8| so that the zero pose has a gradient.
+RODRIGUES_EPS = 1e-8
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class FlameModel:
+    """FLAME constants (V vertices, J joints, F faces).
+
+    Attributes:
+      v_template: (V, 3) template vertices.
+      shapedirs: (V, 3, S) identity blendshapes.
+      exprdirs: (V, 3, E) expression blendshapes.
+      posedirs: (V, 3, (J-1)*9) pose-corrective blendshapes.
+      j_regressor: (J, V) joint regressor.
+      lbs_weights: (V, J) skinning weights.
+      faces: (F, 3) int32 triangles.
+      parents: joint parents, parents[0] = -1 (static).
+    """
+
+    v_template: jax.Array
+    shapedirs: jax.Array
+    exprdirs: jax.Array
+    posedirs: jax.Array
+    j_regressor: jax.Array
+    lbs_weights: jax.Array
+    faces: jax.Array
+    parents: tuple = dataclasses.field(metadata=dict(static=True), default=FLAME_PARENTS)
+
+    @property
+    def num_vertices(self) -> int:
+        return self.v_template.shape[0]
+
+    @property
+    def num_shape(self) -> int:
+        return self.shapedirs.shape[-1]
+
+    @property
+    def num_expr(self) -> int:
+        return self.exprdirs.shape[-1]
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class FlameParams:
+    """Per-frame FLAME parameters (add a leading frame axis and `jax.vmap` for sequences).
+
+    Attributes:
+      shape: (S,) identity coefficients; expr: (E,) expression coefficients.
+      rotation, neck, jaw: (3,) axis-angle; eyes: (6,) left then right axis-angle.
+      translation: (3,) added after skinning.
+      static_offset: optional (V, 3) per-vertex offset added to the shaped template.
+    """
+
+    shape: jax.Array
+    expr: jax.Array
+    rotation: jax.Array
+    neck: jax.Array
+    jaw: jax.Array
+    eyes: jax.Array
+    translation: jax.Array
+    static_offset: Optional[jax.Array] = None
+
+    @property
+    def full_pose(self) -> jax.Array:
+        """(15,) [global | neck | jaw | eyes]."""
+        return jnp.concatenate([self.rotation, self.neck, self.jaw, self.eyes], axis=-1)
+
+
+def zero_params(model: FlameModel, dtype=jnp.float32) -> FlameParams:
+    """Neutral shape and expression, zero pose and translation."""
+    z3 = jnp.zeros(3, dtype)
+    return FlameParams(shape=jnp.zeros(model.num_shape, dtype),
+                       expr=jnp.zeros(model.num_expr, dtype), rotation=z3, neck=z3, jaw=z3,
+                       eyes=jnp.zeros(6, dtype), translation=z3)
+
+
+def rodrigues(axis_angle: jax.Array) -> jax.Array:
+    """(..., 3) axis-angle -> (..., 3, 3) rotation, R = I + sin(a) K + (1 - cos(a)) K^2."""
+    angle = jnp.linalg.norm(axis_angle + RODRIGUES_EPS, axis=-1, keepdims=True)
+    axis = axis_angle / angle
+    x, y, z = axis[..., 0], axis[..., 1], axis[..., 2]
+    zero = jnp.zeros_like(x)
+    k = jnp.stack([jnp.stack([zero, -z, y], -1), jnp.stack([z, zero, -x], -1),
+                   jnp.stack([-y, x, zero], -1)], -2)
+    s, c = jnp.sin(angle)[..., None], jnp.cos(angle)[..., None]
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=axis_angle.dtype), k.shape)
+    return eye + s * k + (1.0 - c) * (k @ k)
+
+
+def shaped_vertices(model: FlameModel, params: FlameParams) -> jax.Array:
+    """(V, 3) template + identity and expression blendshapes (+ static offset)."""
+    v = (model.v_template + jnp.einsum("vcs,s->vc", model.shapedirs, params.shape)
+         + jnp.einsum("vce,e->vc", model.exprdirs, params.expr))
+    if params.static_offset is not None:
+        v = v + params.static_offset
+    return v
+
+
+def lbs(model: FlameModel, params: FlameParams, return_joints: bool = False):
+    """Posed vertices (V, 3) of one frame (and (J, 3) posed joints when asked)."""
+    v_shaped = shaped_vertices(model, params)
+    joints = model.j_regressor @ v_shaped
+    num_joints = len(model.parents)
+    rots = rodrigues(params.full_pose.reshape(num_joints, 3))
+    eye = jnp.eye(3, dtype=rots.dtype)
+    pose_feature = (rots[1:] - eye[None]).reshape(-1)
+    v_posed = v_shaped + jnp.einsum("vcp,p->vc", model.posedirs, pose_feature)
+
+    def rigid(r, t):
+        top = jnp.concatenate([r, t[:, None]], axis=1)
+        return jnp.concatenate([top, jnp.asarray([[0.0, 0.0, 0.0, 1.0]], r.dtype)], axis=0)
+
+    chain = []
+    for j, parent in enumerate(model.parents):
+        rel = joints[j] if parent < 0 else joints[j] - joints[parent]
+        local = rigid(rots[j], rel)
+        chain.append(local if parent < 0 else chain[parent] @ local)
+    world = jnp.stack(chain)  # (J, 4, 4)
+    posed_joints = world[:, :3, 3]
+    # Remove the rest joint positions so each transform acts on rest-pose vertices.
+    offset = posed_joints - jnp.einsum("jab,jb->ja", world[:, :3, :3], joints)
+    transforms = world.at[:, :3, 3].set(offset)
+    per_vertex = jnp.einsum("vj,jab->vab", model.lbs_weights, transforms)
+    verts = (jnp.einsum("vab,vb->va", per_vertex[:, :3, :3], v_posed) + per_vertex[:, :3, 3]
+             + params.translation[None, :])
+    if return_joints:
+        return verts, posed_joints + params.translation[None, :]
+    return verts
+
+
+# ----------------------------------------------------------------------------------------------
+# Files
+
+
+class FlameFileError(ValueError):
+    """A FLAME file is unreadable, unsafe, or missing / mis-shaping a field."""
+
+
+class _ArrayState:
+    """Holds the pickled state of a chumpy array or a scipy sparse matrix, nothing else."""
+
+    state: dict = {}
+
+    def __init__(self, *args, **kwargs):
+        self.state = {}
+
+    def __setstate__(self, state):
+        self.state = state if isinstance(state, dict) else {"args": state}
+
+
+class _ChumpyArray(_ArrayState):
+    kind = "chumpy"
+
+
+class _SparseMatrix(_ArrayState):
+    kind = "sparse"
+
+
+_NUMPY_ALLOWED = {
+    ("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"),
+    ("numpy", "ndarray"), ("numpy", "dtype"), ("numpy.core.numeric", "_frombuffer"),
+    ("numpy._core.numeric", "_frombuffer"),
+}
+
+
+class _RestrictedUnpickler(pickle.Unpickler):
+    """Rebuilds numpy arrays, scipy sparse matrices and chumpy arrays; refuses everything else."""
+
+    def find_class(self, module, name):
+        if (module, name) in _NUMPY_ALLOWED:
+            if module.startswith("numpy.core") and hasattr(np, "_core"):
+                module = "numpy._core" + module[len("numpy.core"):]  # numpy 2 moved it
+            return super().find_class(module, name)
+        if (module, name) == ("_codecs", "encode"):  # how protocol-2 pickles store bytes
+            return _latin1_encode
+        if (module, name) in {("copyreg", "_reconstructor"), ("copy_reg", "_reconstructor")}:
+            return _reconstruct_stub
+        if (module, name) in {("builtins", "object"), ("__builtin__", "object")}:
+            return object
+        if module.startswith("scipy.sparse") and name in ("csc_matrix", "csr_matrix",
+                                                          "coo_matrix"):
+            return type(name, (_SparseMatrix,), {"format": name[:3]})
+        if module.split(".")[0] == "chumpy":
+            return _ChumpyArray
+        raise FlameFileError(f"refusing to unpickle {module}.{name}: a FLAME file only holds "
+                             "numpy, scipy.sparse and chumpy arrays")
+
+
+def _latin1_encode(text, encoding="latin1"):
+    if not isinstance(text, str) or encoding not in ("latin1", "latin-1"):
+        raise FlameFileError("refusing an unexpected _codecs.encode call")
+    return text.encode("latin1")
+
+
+def _reconstruct_stub(cls, base, state):
+    if not (isinstance(cls, type) and issubclass(cls, _ArrayState)):
+        raise FlameFileError(f"refusing to reconstruct {cls!r}")
+    return cls()
+
+
+def _to_array(value, key: str, path: str) -> np.ndarray:
+    """numpy, chumpy-like or sparse-like value -> dense numpy array."""
+    if isinstance(value, np.ndarray):
+        return value
+    if isinstance(value, _ChumpyArray):
+        for field in ("x", "r", "a"):
+            if field in value.state:
+                return _to_array(value.state[field], key, path)
+        raise FlameFileError(f"{path}: chumpy array '{key}' holds no data ('x')")
+    if isinstance(value, _SparseMatrix):
+        st = value.state
+        shape = st.get("_shape", st.get("shape"))
+        if value.format == "coo":
+            dense = np.zeros(shape)
+            np.add.at(dense, (np.asarray(st["row"]), np.asarray(st["col"])),
+                      np.asarray(st["data"]))
+            return dense
+        data, indices, indptr = (np.asarray(st[k]) for k in ("data", "indices", "indptr"))
+        dense = np.zeros(shape, dtype=data.dtype)
+        major = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
+        if value.format == "csc":
+            np.add.at(dense, (indices, major), data)
+        else:
+            np.add.at(dense, (major, indices), data)
+        return dense
+    if isinstance(value, (list, tuple, int, float)):
+        return np.asarray(value)
+    raise FlameFileError(f"{path}: field '{key}' has unsupported type {type(value).__name__}")
+
+
+def _read_pickle(path: str) -> dict:
+    with open(path, "rb") as f:
+        data = f.read()
+    try:
+        obj = _RestrictedUnpickler(io.BytesIO(data), encoding="latin1").load()
+    except FlameFileError as exc:
+        raise FlameFileError(f"{path}: {exc}") from None
+    except Exception as exc:  # truncated or corrupt files
+        raise FlameFileError(f"{path}: not a readable FLAME pickle ({exc})") from exc
+    if not isinstance(obj, dict):
+        raise FlameFileError(f"{path}: expected a dict of arrays, got {type(obj).__name__}")
+    return obj
+
+
+def _require(raw: dict, key: str, path: str, ndim: int) -> np.ndarray:
+    if key not in raw:
+        raise FlameFileError(f"{path}: missing field '{key}'")
+    arr = _to_array(raw[key], key, path)
+    if arr.ndim != ndim:
+        raise FlameFileError(f"{path}: field '{key}' must have {ndim} dimensions, got shape "
+                             f"{arr.shape}")
+    if arr.dtype.kind in "fc" and not np.all(np.isfinite(arr)):
+        raise FlameFileError(f"{path}: field '{key}' contains NaN or infinite values")
+    return arr
+
+
+def _build(v_template, shapedirs, exprdirs, posedirs, j_regressor, weights, faces, parents,
+           path: str, dtype) -> FlameModel:
+    v = v_template.shape[0]
+    j = len(parents)
+    checks = {
+        "v_template": (v_template.shape, (v, 3)),
+        "shapedirs": (shapedirs.shape[:2], (v, 3)),
+        "exprdirs": (exprdirs.shape[:2], (v, 3)),
+        "posedirs": (posedirs.shape, (v, 3, (j - 1) * 9)),
+        "J_regressor": (j_regressor.shape, (j, v)),
+        "weights": (weights.shape, (v, j)),
+        "f": (faces.shape[1:], (3,)),
+    }
+    for key, (got, want) in checks.items():
+        if tuple(got) != tuple(want):
+            raise FlameFileError(f"{path}: field '{key}' has shape {tuple(got)}, expected {want}")
+    if parents[0] != -1 or any(not 0 <= p < i for i, p in enumerate(parents) if i > 0):
+        raise FlameFileError(f"{path}: kinematic tree {parents} is not a tree rooted at joint 0")
+    if faces.size and (faces.min() < 0 or faces.max() >= v):
+        raise FlameFileError(f"{path}: field 'f' indexes vertices outside 0..{v - 1}")
+    return FlameModel(
+        v_template=jnp.asarray(v_template, dtype), shapedirs=jnp.asarray(shapedirs, dtype),
+        exprdirs=jnp.asarray(exprdirs, dtype), posedirs=jnp.asarray(posedirs, dtype),
+        j_regressor=jnp.asarray(j_regressor, dtype), lbs_weights=jnp.asarray(weights, dtype),
+        faces=jnp.asarray(faces, jnp.int32), parents=tuple(int(p) for p in parents))
+
+
+def load_flame(path: str, n_shape: int = 300, n_expr: int = 100, dtype=jnp.float32) -> FlameModel:
+    """Reads a FLAME `.pkl` (2020 / 2023) or a gae_jax `.npz`.
+
+    Args:
+      n_shape, n_expr: how many identity / expression components to keep (at most what the file
+        has). In a pickle the expression basis is columns 300.. of `shapedirs`.
+    Raises:
+      FlameFileError naming the file and field for unsafe, unreadable or malformed files.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FlameFileError(f"{path}: no such file")
+    if path.endswith(".npz"):
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                raw = {k: f[k] for k in f.files}
+        except Exception as exc:
+            raise FlameFileError(f"{path}: not a readable .npz ({exc})") from exc
+        shapedirs = _require(raw, "shapedirs", path, 3)
+        exprdirs = _require(raw, "exprdirs", path, 3)
+        parents = tuple(int(p) for p in _require(raw, "parents", path, 1))
+    else:
+        raw = _read_pickle(path)
+        all_dirs = _require(raw, "shapedirs", path, 3)
+        if all_dirs.shape[-1] > FLAME_IDENTITY_COMPONENTS:
+            shapedirs = all_dirs[..., :FLAME_IDENTITY_COMPONENTS]
+            exprdirs = all_dirs[..., FLAME_IDENTITY_COMPONENTS:]
+        else:
+            shapedirs, exprdirs = all_dirs, all_dirs[..., :0]
+        kintree = _require(raw, "kintree_table", path, 2)
+        parents = (-1,) + tuple(int(p) for p in kintree[0, 1:])
+    if n_shape > shapedirs.shape[-1] or n_expr > exprdirs.shape[-1]:
+        raise FlameFileError(
+            f"{path}: asked for {n_shape} shape / {n_expr} expression components, the file has "
+            f"{shapedirs.shape[-1]} / {exprdirs.shape[-1]}")
+    return _build(_require(raw, "v_template", path, 2), shapedirs[..., :n_shape],
+                  exprdirs[..., :n_expr], _require(raw, "posedirs", path, 3),
+                  _require(raw, "J_regressor", path, 2), _require(raw, "weights", path, 2),
+                  _require(raw, "f", path, 2).astype(np.int64), parents, path, dtype)
+
+
+def save_flame(model: FlameModel, path: str) -> None:
+    """Writes a model as gae_jax `.npz` (readable by `load_flame`), atomically."""
+    from gae_jax.io import atomic_write_bytes
+
+    buf = io.BytesIO()
+    np.savez(buf, v_template=np.asarray(model.v_template), shapedirs=np.asarray(model.shapedirs),
+             exprdirs=np.asarray(model.exprdirs), posedirs=np.asarray(model.posedirs),
+             J_regressor=np.asarray(model.j_regressor), weights=np.asarray(model.lbs_weights),
+             f=np.asarray(model.faces), parents=np.asarray(model.parents))
+    atomic_write_bytes(path, buf.getvalue())
