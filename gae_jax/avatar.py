@@ -129,7 +129,8 @@ def deform(avatar: Avatar, vertices: jax.Array, faces: jax.Array) -> Gaussians:
 
 
 def init_from_mesh(vertices, faces, vertex_colors, face_regions, *, per_face: int = 1,
-                   sh_degree: int | None = 0, key=None, opacity: float = INIT_OPACITY) -> Avatar:
+                   sh_degree: int | None = 0, key=None, opacity: float = INIT_OPACITY,
+                   normal_scale: float = 1.0) -> Avatar:
     """Gaussians on every face (GaussianAvatars' initialisation, optionally denser).
 
     Args:
@@ -139,6 +140,9 @@ def init_from_mesh(vertices, faces, vertex_colors, face_regions, *, per_face: in
         more are spread at random barycentric points (needs `key`) with scale k / sqrt(per_face).
       sh_degree: 0..3 stores SH coefficients (DC from the albedo, the rest zero); None stores
         plain RGB.
+      opacity: initial opacity (GaussianAvatars: 0.1).
+      normal_scale: scale factor along the face normal (1: spheres as GaussianAvatars; < 1:
+        surfel-like discs that cover the surface without thickness).
     """
     if per_face < 1:
         raise ValueError(f"per_face must be >= 1, got {per_face}")
@@ -168,7 +172,8 @@ def init_from_mesh(vertices, faces, vertex_colors, face_regions, *, per_face: in
     return Avatar(
         binding=binding, means=local.astype(dtype),
         quats=jnp.tile(jnp.asarray([1.0, 0.0, 0.0, 0.0], dtype), (n, 1)),
-        log_scales=jnp.full((n, 3), -0.5 * np.log(per_face), dtype),
+        log_scales=jnp.full((n, 3), -0.5 * np.log(per_face), dtype).at[:, 1].add(
+            float(np.log(normal_scale))),
         opacity_logits=jnp.full((n,), float(np.log(opacity / (1 - opacity))), dtype),
         colors=colors, regions=jnp.asarray(face_regions, jnp.int32)[binding])
 
