@@ -147,3 +147,14 @@ def test_densify_children_inherit_binding_and_split_shrinks():
     kids = np.asarray(d.binding) == 5
     np.testing.assert_allclose(np.asarray(d.log_scales)[kids], -np.log(1.6), atol=1e-6)
     assert not np.allclose(np.asarray(d.means)[kids][0], np.asarray(d.means)[kids][1])
+
+
+def test_deform_vmaps_over_frames(x64):
+    verts, faces = random_mesh(10)
+    a = av.init_from_mesh(verts, faces, jnp.ones((30, 3)), jnp.zeros(20))
+    frames = jnp.stack([verts, verts * 1.3, verts[:, ::-1]])
+    batched = jax.vmap(av.deform, in_axes=(None, 0, None))(a, frames, faces)
+    for i in range(3):
+        single = av.deform(a, frames[i], faces)
+        np.testing.assert_allclose(batched.means[i], single.means, atol=1e-12)
+        np.testing.assert_allclose(batched.quats[i], single.quats, atol=1e-12)
