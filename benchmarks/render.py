@@ -85,7 +85,7 @@ def main(argv=None):
                         help="NUMxSIZE entries")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--blend", default="standard", choices=["standard", "wabe", "wabe_grad"])
-    parser.add_argument("--unroll", type=int, default=4)
+    parser.add_argument("--unroll", type=int, default=8)
     parser.add_argument("--options", nargs="+", default=["fast", "default"],
                         choices=["fast", "default"],
                         help="fast: gae_jax.compile.compiler_options(); default: plain jax.jit. "

@@ -25,6 +25,7 @@ Pixels are laid out per tile: (num_tiles, 256, ...), tile-major in row order.
 from __future__ import annotations
 
 import dataclasses
+import math
 from functools import partial
 
 import jax
@@ -48,7 +49,8 @@ class CompositeConfig:
       blend: colour weighting (`wabe.Blend`).
       alpha_clamp: upper bound on alpha (0.99 as in Inria 3DGS, so 1 - alpha >= 0.01).
       tiles_x, tiles_y: tile grid.
-      unroll: list slots processed per loop iteration.
+      unroll, unroll_backward: list slots processed per loop iteration of the forward and the
+        backward walk (speed only; 8 and 8 measured best on a 2-core AVX-512 CPU).
       tiles_per_chunk: tiles walked together; chunks run one after another so that their
         per-pixel state stays in cache, and tiles are grouped by list length so that each chunk
         stops after its own longest list.
@@ -61,7 +63,8 @@ class CompositeConfig:
     alpha_clamp: float
     tiles_x: int
     tiles_y: int
-    unroll: int = 4
+    unroll: int = 8
+    unroll_backward: int = 8
     tiles_per_chunk: int = 32
     front_contributors: int = 0
     visibility_beta: float = wabe.PAPER_BETA
@@ -161,7 +164,8 @@ def _chunking(kept, tiles_per_chunk: int) -> _Chunking:
 def _chunk_inputs(cfg, table, kept, packed):
     """Per-chunk lists (C, t, cap', K), pixel centres (C, t, 256, 2), origins (C, t, 2), slots (C,)."""
     chunks = _chunking(kept, cfg.tiles_per_chunk)
-    pad_slots = (-table.shape[1]) % cfg.unroll
+    block = math.lcm(cfg.unroll, cfg.unroll_backward)
+    pad_slots = (-table.shape[1]) % block
     table = jnp.pad(table, ((0, 0), (0, pad_slots)), constant_values=-1)
     rows = jnp.concatenate([packed, jnp.zeros((1, packed.shape[1]), packed.dtype)])
     lists = rows[jnp.where(table < 0, packed.shape[0], table)]
@@ -292,18 +296,19 @@ def _backward_chunk(cfg, lists, pix, origins, last, cot):
     basis = _moment_basis(lists.dtype)
     g_planes = [g_color[..., ch] for ch in range(num_channels)]
     g_targets = jnp.concatenate([g_color, g_depth[..., None]], axis=-1)  # (t, 256, C + 1)
+    unroll = cfg.unroll_backward
     top = jnp.max(last)
-    top = (top + cfg.unroll - 1) // cfg.unroll * cfg.unroll
+    top = (top + unroll - 1) // unroll * unroll
 
     def cond(c):
         return c["j"] > 0
 
     def body(c):
         c = dict(c)
-        start = c["j"] - cfg.unroll
-        block = lax.dynamic_slice_in_dim(lists, start, cfg.unroll, axis=1)
-        dq_planes, weight_planes = [None] * cfg.unroll, [None] * (2 * cfg.unroll)
-        for u in reversed(range(cfg.unroll)):
+        start = c["j"] - unroll
+        block = lax.dynamic_slice_in_dim(lists, start, unroll, axis=1)
+        dq_planes, weight_planes = [None] * unroll, [None] * (2 * unroll)
+        for u in reversed(range(unroll)):
             g = block[:, u]
             _, alpha, valid = _alpha(pix, g, cfg.alpha_clamp)
             use = valid & (start + u < last)
@@ -332,7 +337,7 @@ def _backward_chunk(cfg, lists, pix, origins, last, cot):
             weight_planes[2 * u], weight_planes[2 * u + 1] = colour_weight, depth_weight
         m = jnp.stack(dq_planes, axis=1) @ basis  # (t, U, 6): d_q x [1, x, y, xx, xy, yy]
         targets = jnp.einsum("tkp,tpc->tkc", jnp.stack(weight_planes, axis=1), g_targets)
-        targets = targets.reshape(num_tiles, cfg.unroll, 2, num_channels + 1)
+        targets = targets.reshape(num_tiles, unroll, 2, num_channels + 1)
         mx = block[..., 0] - origins[:, None, 0]
         my = block[..., 1] - origins[:, None, 1]
         s_x = m[..., 1] - mx * m[..., 0]

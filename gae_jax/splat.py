@@ -126,7 +126,8 @@ def colors_towards(gaussians: Gaussians, camera: Camera) -> jax.Array:
 def render(gaussians: Gaussians, camera: Camera, *, background=None,
            blend: wabe.Blend = wabe.standard(), tile_capacity: int = DEFAULT_TILE_CAPACITY,
            max_pairs: int | None = None, alpha_clamp: float = DEFAULT_ALPHA_CLAMP,
-           screen_offset: jax.Array | None = None, unroll: int = 4, tiles_per_chunk: int = 32,
+           screen_offset: jax.Array | None = None, unroll: int = 8, unroll_backward: int = 8,
+           tiles_per_chunk: int = 32,
            visibility_contributors: int = 0,
            visibility_beta: float = wabe.PAPER_BETA) -> RenderOutput:
     """Renders Gaussians into camera.height x camera.width.
@@ -141,7 +142,8 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
       alpha_clamp: upper bound on a single Gaussian's alpha.
       screen_offset: optional (N, 2) added to the projected means; pass zeros and differentiate
         with respect to it to obtain the screen-space mean gradient used for densification.
-      unroll: list slots per compositor loop iteration (speed only).
+      unroll, unroll_backward: list slots per loop iteration of the compositor's forward and
+        backward walks (speed only).
       tiles_per_chunk: tiles the compositor walks together (speed only).
       visibility_contributors: when > 0, compute `stats.visibility` over each pixel's first this
         many contributors (the official code uses 10); 0 skips it (zeros) and saves time.
@@ -171,6 +173,7 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
     packed = jnp.where(proj.visible[:, None], packed, 0.0)
     cfg = comp.CompositeConfig(blend=blend, alpha_clamp=float(alpha_clamp),
                                tiles_x=bins.tiles_x, tiles_y=bins.tiles_y, unroll=int(unroll),
+                               unroll_backward=int(unroll_backward),
                                tiles_per_chunk=int(tiles_per_chunk),
                                front_contributors=int(visibility_contributors),
                                visibility_beta=float(visibility_beta))

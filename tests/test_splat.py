@@ -16,7 +16,8 @@ from tests import bruteforce
 from tests.helpers import assert_tree_finite, random_unit_cotangent
 
 BLENDS = [wabe.standard(), wabe.wabe(6.0), wabe.wabe_grad(6.0)]
-RENDER_STATIC = ("blend", "tile_capacity", "max_pairs", "alpha_clamp", "unroll", "tiles_per_chunk",
+RENDER_STATIC = ("blend", "tile_capacity", "max_pairs", "alpha_clamp", "unroll", "unroll_backward",
+                 "tiles_per_chunk",
                  "visibility_contributors", "visibility_beta")
 render = jax.jit(splat.render, static_argnames=RENDER_STATIC)
 # float64 renderer vs float64 numpy: only summation order differs.
@@ -180,7 +181,7 @@ def test_custom_vjp_matches_autodiff_of_dense_reference(x64, blend):
                               g.colors], axis=-1)
     packed = jnp.where(p.visible[:, None], packed, 0.0)
     cfg = comp.CompositeConfig(blend=blend, alpha_clamp=0.99, tiles_x=2, tiles_y=2, unroll=3,
-                               tiles_per_chunk=3)
+                               unroll_backward=5, tiles_per_chunk=3)
 
     def fused(x):
         return comp.composite(cfg, bins.table, bins.kept, x)[:3]
