@@ -62,6 +62,14 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
         return 1e3 * float(np.median(times)), 1e3 * float(np.min(times))
 
     (fwd_ms, fwd_min), (fwd_bwd_ms, fwd_bwd_min) = timings_ms(forward), timings_ms(grad)
+    # Machine-speed probe: this VM's speed drifts by up to 2x over an hour, so each result carries
+    # the time numpy needs per float32 exp, measured in the same process.
+    exp_input = np.random.default_rng(0).uniform(-5, 0, 4_000_000).astype(np.float32)
+    np.exp(exp_input)
+    start = time.perf_counter()
+    for _ in range(5):
+        np.exp(exp_input)
+    numpy_exp_ns = (time.perf_counter() - start) / (5 * exp_input.size) * 1e9
     out = jax.jit(image)(g)
     pairs = int(jnp.sum(probe.counts)) * 256  # pixel-Gaussian pairs the tile lists imply
     walked = int(out.stats.num_slots) * 256 * int(probe.counts.shape[0])
@@ -74,6 +82,7 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
         forward_min_ms=round(fwd_min, 2), forward_backward_min_ms=round(fwd_bwd_min, 2),
         tile_pairs_per_s_forward=round(pairs / (fwd_ms * 1e-3)),
         walked_pairs_per_s_forward=round(walked / (fwd_ms * 1e-3)),
+        numpy_exp_ns=round(numpy_exp_ns, 3),
         peak_rss_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
         devices=str(jax.devices()), jax_version=jax.__version__,
     )
