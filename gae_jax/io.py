@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 import tempfile
 
+READABLE_FILE_MODE = 0o644
+
 
 def atomic_write_bytes(path: str, data: bytes) -> None:
     """Writes `data` to `path` so that readers see either the old file or the whole new one."""
@@ -16,6 +18,8 @@ def atomic_write_bytes(path: str, data: bytes) -> None:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+        # mkstemp creates the file private (0600); results are meant to be shared like any file.
+        os.chmod(tmp, READABLE_FILE_MODE)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

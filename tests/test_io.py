@@ -13,6 +13,7 @@ def test_atomic_write_replaces_and_leaves_no_temporaries(tmp_path):
     atomic_write_bytes(str(path), b"new")
     assert path.read_bytes() == b"new"
     assert os.listdir(path.parent) == ["file.bin"]
+    assert (path.stat().st_mode & 0o777) == 0o644
 
 
 def test_failed_write_keeps_the_old_file(tmp_path):
