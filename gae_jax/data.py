@@ -1,0 +1,312 @@
+"""The embedded default scene: the procedural head, filmed by a camera rig, with ground truth.
+
+`make_synthetic_scene(...)` builds identity A and identity B (different shape coefficients and
+albedo), several expression / pose sequences per identity, a rig of cameras on the frontal
+hemisphere (one held out, as NeRSemble's camera 8), and ground-truth images rendered by ray
+casting the coloured mesh (`raycast`, independent of the splatting renderer), with per-pixel
+region labels. Shading is baked per vertex in head space (Lambert from a light fixed to the head),
+so it moves with the head. Splits: identity A's training sequences on the training cameras
+(reconstruction / editing), the held-out camera (novel view), A's held-out sequence
+(self-reenactment) and B's sequence (cross-identity reenactment).
+
+Scenes are cached on disk as `.npz`, keyed by their parameters and `SCENE_VERSION`, written
+atomically, so the second call is a file read.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import json
+import os
+
+import numpy as np
+
+from gae_jax import flame, head
+from gae_jax.camera import Camera, look_at_w2c, make_camera
+from gae_jax.raycast import raycast
+
+SCENE_VERSION = 1
+LIGHT_DIRECTION = np.array([0.35, 0.55, 0.75])  # in head space, towards the light
+AMBIENT = 0.45
+IDENTITY_B_SHAPE = dict(head_width=0.6, nose_length=0.8, jaw_width=-0.6)
+IDENTITY_B_ALBEDO = dict(skin=(0.62, 0.45, 0.36), hair=(0.08, 0.07, 0.07),
+                         brows=(0.07, 0.06, 0.06), iris=(0.30, 0.55, 0.30))
+TRAIN_SEQUENCES = ("talk", "smile", "blink", "jaw", "turn")
+HELD_OUT_SEQUENCE = "mix"
+CROSS_SEQUENCE = "b_mix"
+HELD_OUT_CAMERA = 8
+LOOK_AT = np.array([0.0, -0.01, 0.0])
+
+
+@dataclasses.dataclass(frozen=True)
+class Sequence:
+    """A motion: FLAME parameters per frame (T, ...) for one identity, and its split."""
+
+    name: str
+    identity: str
+    split: str  # "train", "self_reenactment" or "cross_identity"
+    expr: np.ndarray  # (T, E)
+    rotation: np.ndarray  # (T, 3)
+    neck: np.ndarray
+    jaw: np.ndarray
+    eyes: np.ndarray  # (T, 6)
+    translation: np.ndarray
+
+    @property
+    def num_frames(self) -> int:
+        return self.expr.shape[0]
+
+    def params(self, shape: np.ndarray, frame: int) -> flame.FlameParams:
+        """FlameParams of one frame with the given identity shape coefficients."""
+        import jax.numpy as jnp
+
+        f = jnp.float32
+        return flame.FlameParams(
+            shape=jnp.asarray(shape, f), expr=jnp.asarray(self.expr[frame], f),
+            rotation=jnp.asarray(self.rotation[frame], f), neck=jnp.asarray(self.neck[frame], f),
+            jaw=jnp.asarray(self.jaw[frame], f), eyes=jnp.asarray(self.eyes[frame], f),
+            translation=jnp.asarray(self.translation[frame], f))
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """Cameras, identities, sequences and ground truth of the synthetic scene.
+
+    Attributes:
+      intrinsics: (C, 4) fx, fy, cx, cy; w2c: (C, 4, 4); width, height: image size.
+      train_cameras, held_out_cameras: camera indices.
+      shapes: identity name -> (S,) shape coefficients.
+      vertex_colors: identity name -> (V, 3) shaded albedo in head space.
+      sequences: name -> Sequence.
+      images: sequence name -> (C, T, H, W, 3) uint8 ground truth.
+      regions: sequence name -> (C, T, H, W) int8 region labels (-1 background).
+      background: (3,) background colour.
+    """
+
+    intrinsics: np.ndarray
+    w2c: np.ndarray
+    width: int
+    height: int
+    train_cameras: tuple
+    held_out_cameras: tuple
+    shapes: dict
+    vertex_colors: dict
+    sequences: dict
+    images: dict
+    regions: dict
+    background: np.ndarray
+
+    @property
+    def num_cameras(self) -> int:
+        return self.intrinsics.shape[0]
+
+    def camera(self, index: int) -> Camera:
+        """The index-th camera as a `Camera` pytree."""
+        import jax.numpy as jnp
+
+        return Camera(intrinsics=jnp.asarray(self.intrinsics[index], jnp.float32),
+                      w2c=jnp.asarray(self.w2c[index], jnp.float32), width=self.width,
+                      height=self.height)
+
+
+def camera_rig(num_cameras: int, size: int, distance: float = 0.6, fov_degrees: float = 26.0,
+               max_yaw_degrees: float = 60.0, max_pitch_degrees: float = 20.0):
+    """Cameras on the frontal hemisphere looking at the head: (C, 4) intrinsics, (C, 4, 4) w2c.
+
+    Yaw and pitch follow a low-discrepancy spiral, so any count covers the hemisphere evenly;
+    camera `HELD_OUT_CAMERA` is placed nearly frontal, as NeRSemble's validation camera.
+    """
+    if num_cameras < 2:
+        raise ValueError(f"the rig needs at least 2 cameras, got {num_cameras}")
+    golden = (np.sqrt(5.0) - 1.0) / 2.0
+    intr, w2cs = [], []
+    for i in range(num_cameras):
+        u = (i + 0.5) / num_cameras
+        v = (i * golden) % 1.0
+        yaw = np.deg2rad(max_yaw_degrees) * (2 * u - 1)
+        pitch = np.deg2rad(max_pitch_degrees) * (2 * v - 1)
+        if i == HELD_OUT_CAMERA % num_cameras:
+            yaw, pitch = np.deg2rad(8.0), np.deg2rad(4.0)
+        eye = LOOK_AT + distance * np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch),
+                                             np.cos(yaw) * np.cos(pitch)])
+        cam = make_camera(look_at_w2c(eye, LOOK_AT, up=(0, 1, 0)), size, size,
+                          fov_degrees=fov_degrees)
+        intr.append(np.asarray(cam.intrinsics, np.float64))
+        w2cs.append(np.asarray(cam.w2c, np.float64))
+    return np.stack(intr), np.stack(w2cs)
+
+
+def _wave(t, period, phase=0.0):
+    return 0.5 - 0.5 * np.cos(2 * np.pi * (t / period + phase))
+
+
+def make_sequences(frames_per_sequence: int, num_expr: int) -> dict:
+    """The motion library: name -> Sequence (deterministic)."""
+    t = np.arange(frames_per_sequence, dtype=np.float64)
+    n = frames_per_sequence
+    e = {name: i for i, name in enumerate(head.EXPR_NAMES)}
+
+    def seq(name, identity, split, expr=None, rotation=None, neck=None, jaw=None, eyes=None):
+        z3 = np.zeros((n, 3))
+        return Sequence(name=name, identity=identity, split=split,
+                        expr=np.zeros((n, num_expr)) if expr is None else expr,
+                        rotation=z3 if rotation is None else rotation,
+                        neck=z3 if neck is None else neck,
+                        jaw=z3 if jaw is None else np.stack([jaw, 0 * jaw, 0 * jaw], -1),
+                        eyes=np.zeros((n, 6)) if eyes is None else eyes, translation=z3)
+
+    def expr_of(**curves):
+        x = np.zeros((n, num_expr))
+        for k, v in curves.items():
+            x[:, e[k]] = v
+        return x
+
+    talk_jaw = 0.18 * _wave(t, 5.0) * (0.6 + 0.4 * _wave(t, 13.0))
+    out = [
+        seq("talk", "A", "train", expr_of(lips_part=0.5 * _wave(t, 7.0), pout=0.4 * _wave(t, 11)),
+            jaw=talk_jaw),
+        seq("smile", "A", "train", expr_of(smile=_wave(t, n), brow_raise=0.8 * _wave(t, n, 0.2))),
+        seq("blink", "A", "train", expr_of(blink_left=_wave(t, 6.0), blink_right=_wave(t, 6.0)),
+            eyes=np.stack([0 * t, 0.25 * np.sin(t / 3), 0 * t, 0 * t, 0.25 * np.sin(t / 3),
+                           0 * t], -1)),
+        seq("jaw", "A", "train", jaw=0.32 * _wave(t, n)),
+        seq("turn", "A", "train",
+            rotation=np.stack([0.15 * np.sin(t / 4), 0.55 * np.sin(2 * np.pi * t / n), 0 * t],
+                              -1),
+            neck=np.stack([0.1 * np.sin(t / 3), 0 * t, 0.08 * np.sin(t / 5)], -1),
+            jaw=0.1 * _wave(t, 9.0)),
+        seq(HELD_OUT_SEQUENCE, "A", "self_reenactment",
+            expr_of(smile=0.7 * _wave(t, 9.0), blink_left=_wave(t, 8.0, 0.3),
+                    lips_part=0.4 * _wave(t, 6.0)),
+            rotation=np.stack([0 * t, 0.35 * np.sin(t / 3), 0.1 * np.sin(t / 4)], -1),
+            jaw=0.22 * _wave(t, 7.0, 0.5)),
+        seq(CROSS_SEQUENCE, "B", "cross_identity",
+            expr_of(pout=_wave(t, 10.0), blink_right=_wave(t, 7.0), brow_raise=_wave(t, 12.0)),
+            rotation=np.stack([0.1 * np.sin(t / 2), -0.4 * np.sin(t / 5), 0 * t], -1),
+            jaw=0.26 * _wave(t, 8.0)),
+    ]
+    return {s.name: s for s in out}
+
+
+def shaded_colors(model: flame.FlameModel, albedo: np.ndarray, shape: np.ndarray) -> np.ndarray:
+    """(V, 3) albedo x Lambert shading of the identity's neutral mesh, baked in head space."""
+    import jax.numpy as jnp
+
+    params = flame.zero_params(model)
+    params = dataclasses.replace(params, shape=jnp.asarray(shape, jnp.float32))
+    verts = np.asarray(flame.lbs(model, params), np.float64)
+    faces = np.asarray(model.faces)
+    normals = np.zeros_like(verts)
+    face_normals = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]],
+                            verts[faces[:, 2]] - verts[faces[:, 0]])
+    for k in range(3):
+        np.add.at(normals, faces[:, k], face_normals)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    light = LIGHT_DIRECTION / np.linalg.norm(LIGHT_DIRECTION)
+    shade = AMBIENT + (1 - AMBIENT) * np.clip(normals @ light, 0, 1)
+    return np.clip(albedo * shade[:, None], 0, 1)
+
+
+def identity_albedo(assets: head.HeadAssets, overrides: dict) -> np.ndarray:
+    """(V, 3) albedo with some regions recoloured (per-vertex, by the regions of its faces)."""
+    albedo = assets.vertex_colors.astype(np.float64).copy()
+    for region, colour in overrides.items():
+        default = np.asarray(head.ALBEDO[region])
+        mask = np.all(np.isclose(albedo, default, atol=1e-6), axis=1)
+        albedo[mask] = colour
+    return albedo
+
+
+def render_frame(model, face_regions, vertex_colors, shape, sequence: Sequence, frame: int,
+                 intrinsics, w2c, size: int, background):
+    """Ground truth of one frame from every camera by ray casting the posed, coloured mesh.
+
+    Pass edited `vertex_colors` to get the ideal edit of the same frame.
+    Returns images (C, H, W, 3) uint8 and region maps (C, H, W) int8 (-1 background).
+    """
+    verts = np.asarray(flame.lbs(model, sequence.params(shape, frame)))
+    faces = np.asarray(model.faces)
+    images = np.zeros((len(intrinsics), size, size, 3), np.uint8)
+    regions = np.zeros((len(intrinsics), size, size), np.int8)
+    for c in range(len(intrinsics)):
+        cam = Camera(intrinsics=intrinsics[c], w2c=w2c[c], width=size, height=size)
+        out = raycast(verts, faces, vertex_colors, face_regions, cam, background)
+        images[c] = (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8)
+        regions[c] = out.regions
+    return images, regions
+
+
+def _cache_key(params: dict) -> str:
+    blob = json.dumps(dict(params, version=SCENE_VERSION), sort_keys=True).encode()
+    return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequence: int = 16,
+                         background: str = "white", cache_dir: str | None = None,
+                         progress: bool = True) -> Scene:
+    """Builds (or loads from the cache) the default scene.
+
+    Args:
+      size: image width and height in pixels.
+      num_cameras: rig size (camera `HELD_OUT_CAMERA` is held out for novel views).
+      frames_per_sequence: frames in each of the 7 sequences.
+      background: "white" or "black".
+      cache_dir: where cached scenes live; `$GAE_JAX_CACHE` or ~/.cache/gae_jax when None.
+    """
+    if size < 8 or num_cameras < 2 or frames_per_sequence < 2:
+        raise ValueError("need size >= 8, num_cameras >= 2 and frames_per_sequence >= 2")
+    if background not in ("white", "black"):
+        raise ValueError(f"background must be 'white' or 'black', got {background!r}")
+    key = _cache_key(dict(size=size, num_cameras=num_cameras, frames=frames_per_sequence,
+                          background=background))
+    cache_dir = cache_dir or os.environ.get("GAE_JAX_CACHE") or os.path.join(
+        os.path.expanduser("~"), ".cache", "gae_jax")
+    path = os.path.join(cache_dir, f"scene-{key}.npz")
+    model, assets = head.make_head()
+    sequences = make_sequences(frames_per_sequence, model.num_expr)
+    intrinsics, w2c = camera_rig(num_cameras, size)
+    shapes = {"A": np.zeros(model.num_shape), "B": np.asarray(head.identity(**IDENTITY_B_SHAPE))}
+    colours = {"A": shaded_colors(model, assets.vertex_colors, shapes["A"]),
+               "B": shaded_colors(model, identity_albedo(assets, IDENTITY_B_ALBEDO), shapes["B"])}
+    bg = np.ones(3) if background == "white" else np.zeros(3)
+    held_out = (HELD_OUT_CAMERA % num_cameras,)
+    train = tuple(i for i in range(num_cameras) if i not in held_out)
+
+    images, regions = {}, {}
+    if os.path.isfile(path):
+        with np.load(path) as f:
+            for name in sequences:
+                images[name], regions[name] = f[f"images/{name}"], f[f"regions/{name}"]
+    else:
+        total = sum(s.num_frames for s in sequences.values())
+        bar = _progress(total, "ground truth frames", progress)
+        for name, seq in sequences.items():
+            per_frame = [render_frame(model, assets.face_regions, colours[seq.identity],
+                                      shapes[seq.identity], seq, t, intrinsics, w2c, size, bg)
+                         for t in range(seq.num_frames) if bar.update(1) or True]
+            images[name] = np.stack([f[0] for f in per_frame], axis=1)
+            regions[name] = np.stack([f[1] for f in per_frame], axis=1)
+        bar.close()
+        _save_cache(path, images, regions)
+    return Scene(intrinsics=intrinsics.astype(np.float32), w2c=w2c.astype(np.float32),
+                 width=size, height=size, train_cameras=train, held_out_cameras=held_out,
+                 shapes=shapes, vertex_colors=colours, sequences=sequences, images=images,
+                 regions=regions, background=bg.astype(np.float32))
+
+
+def _progress(total, desc, enabled):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, disable=not enabled, leave=False)
+
+
+def _save_cache(path, images, regions):
+    from gae_jax.io import atomic_write_bytes
+
+    buf = io.BytesIO()
+    arrays = {f"images/{k}": v for k, v in images.items()}
+    arrays.update({f"regions/{k}": v for k, v in regions.items()})
+    np.savez_compressed(buf, **arrays)
+    atomic_write_bytes(path, buf.getvalue())
