@@ -1,0 +1,134 @@
+"""GaussianAvatars files: `point_cloud.ply` (triangle-local Gaussians with their binding) and
+`flame_param.npz` (stacked per-frame FLAME parameters), plus a world-space 3DGS `.ply` of the
+avatar posed at one frame, which common splat viewers open directly.
+
+point_cloud.ply properties (all float32): x y z (local mean), nx ny nz (zeros), f_dc_0..2,
+f_rest_* (channel-major: index = channel * (K - 1) + coefficient), opacity (logit), scale_0..2
+(local log-scale), rot_0..3 (local wxyz), binding_0 (face index).
+"""
+
+from __future__ import annotations
+
+import io as _io
+
+import jax.numpy as jnp
+import numpy as np
+
+from gae_jax import sh
+from gae_jax.avatar import Avatar
+from gae_jax.flame import FlameParams
+from gae_jax.io import PlyError, atomic_write_bytes, read_ply, require, write_ply
+from gae_jax.splat import Gaussians
+
+FLAME_PARAM_KEYS = ("rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation", "expr")
+
+
+def _sh_properties(colors: np.ndarray) -> dict:
+    """(N, K, 3) SH coefficients -> f_dc_* and channel-major f_rest_* properties."""
+    props = {f"f_dc_{c}": colors[:, 0, c] for c in range(3)}
+    rest = np.transpose(colors[:, 1:, :], (0, 2, 1)).reshape(colors.shape[0], -1)
+    props.update({f"f_rest_{i}": rest[:, i] for i in range(rest.shape[1])})
+    return props
+
+
+def _sh_from_properties(props: dict, path: str) -> np.ndarray:
+    dc = require(props, [f"f_dc_{c}" for c in range(3)], path)
+    num_rest = sum(1 for k in props if k.startswith("f_rest_"))
+    if num_rest % 3:
+        raise PlyError(f"{path}: {num_rest} f_rest properties is not a multiple of 3")
+    k = 1 + num_rest // 3
+    sh.degree_of(k)
+    rest = require(props, [f"f_rest_{i}" for i in range(num_rest)], path)
+    rest = np.transpose(rest.reshape(-1, 3, k - 1), (0, 2, 1))
+    return np.concatenate([dc[:, None, :], rest], axis=1)
+
+
+def _as_sh(colors) -> np.ndarray:
+    colors = np.asarray(colors, np.float32)
+    return colors if colors.ndim == 3 else np.asarray(sh.rgb_to_dc(colors))[:, None, :]
+
+
+def save_avatar_ply(avatar: Avatar, path: str) -> None:
+    """Writes an avatar as GaussianAvatars' point_cloud.ply (plain colours are stored as SH DC)."""
+    n = avatar.num
+    props = {k: v for k, v in zip("xyz", np.asarray(avatar.means).T)}
+    props.update({f"n{k}": np.zeros(n) for k in "xyz"})
+    props.update(_sh_properties(_as_sh(avatar.colors)))
+    props["opacity"] = np.asarray(avatar.opacity_logits)
+    props.update({f"scale_{i}": np.asarray(avatar.log_scales)[:, i] for i in range(3)})
+    props.update({f"rot_{i}": np.asarray(avatar.quats)[:, i] for i in range(4)})
+    props["binding_0"] = np.asarray(avatar.binding, np.float32)
+    write_ply(path, props)
+
+
+def load_avatar_ply(path: str, face_regions=None) -> Avatar:
+    """Reads point_cloud.ply; regions come from `face_regions` (F,) when given, else 0."""
+    props = read_ply(path)
+    binding = require(props, ["binding_0"], path)[:, 0].astype(np.int32)
+    regions = (np.zeros_like(binding) if face_regions is None
+               else np.asarray(face_regions, np.int32)[binding])
+    return Avatar(
+        binding=jnp.asarray(binding), means=jnp.asarray(require(props, list("xyz"), path)),
+        quats=jnp.asarray(require(props, [f"rot_{i}" for i in range(4)], path)),
+        log_scales=jnp.asarray(require(props, [f"scale_{i}" for i in range(3)], path)),
+        opacity_logits=jnp.asarray(require(props, ["opacity"], path)[:, 0]),
+        colors=jnp.asarray(_sh_from_properties(props, path)), regions=jnp.asarray(regions))
+
+
+def save_posed_ply(gaussians: Gaussians, path: str) -> None:
+    """World-space 3DGS .ply (log-scales, opacity logits, unit wxyz) readable by splat viewers."""
+    g = gaussians
+    opac = np.clip(np.asarray(g.opacities, np.float64), 1e-6, 1 - 1e-6)
+    quats = np.asarray(g.quats, np.float64)
+    quats = quats / np.linalg.norm(quats, axis=1, keepdims=True)
+    props = {k: v for k, v in zip("xyz", np.asarray(g.means).T)}
+    props.update({f"n{k}": np.zeros(g.num) for k in "xyz"})
+    props.update(_sh_properties(_as_sh(g.colors)))
+    props["opacity"] = np.log(opac / (1 - opac))
+    props.update({f"scale_{i}": np.log(np.asarray(g.scales))[:, i] for i in range(3)})
+    props.update({f"rot_{i}": quats[:, i] for i in range(4)})
+    write_ply(path, props)
+
+
+def save_flame_params(path: str, shape, frames: FlameParams, static_offset=None) -> None:
+    """Stacked per-frame parameters (T, ...) as GaussianAvatars' flame_param.npz."""
+    buf = _io.BytesIO()
+    arrays = dict(shape=np.asarray(shape), rotation=np.asarray(frames.rotation),
+                  neck_pose=np.asarray(frames.neck), jaw_pose=np.asarray(frames.jaw),
+                  eyes_pose=np.asarray(frames.eyes), translation=np.asarray(frames.translation),
+                  expr=np.asarray(frames.expr))
+    if static_offset is not None:
+        arrays["static_offset"] = np.asarray(static_offset)[None]
+    np.savez(buf, **arrays)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def load_flame_params(path: str):
+    """Reads flame_param.npz -> (shape (S,), FlameParams with a leading frame axis)."""
+    try:
+        f = np.load(path, allow_pickle=False)
+    except Exception as exc:
+        raise ValueError(f"{path}: not a readable .npz ({exc})") from exc
+    with f:
+        missing = [k for k in ("shape",) + FLAME_PARAM_KEYS if k not in f.files]
+        if missing:
+            raise ValueError(f"{path}: missing keys {missing}")
+        arr = {k: np.asarray(f[k], np.float32) for k in f.files}
+    t = arr["expr"].shape[0]
+    for key, width in (("rotation", 3), ("neck_pose", 3), ("jaw_pose", 3), ("eyes_pose", 6),
+                       ("translation", 3)):
+        if arr[key].shape != (t, width):
+            raise ValueError(f"{path}: '{key}' must have shape ({t}, {width}), got "
+                             f"{arr[key].shape}")
+    for key, value in arr.items():
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"{path}: '{key}' contains NaN or infinite values")
+    offset = arr.get("static_offset")
+    frames = FlameParams(
+        shape=jnp.broadcast_to(jnp.asarray(arr["shape"].reshape(-1)), (t, arr["shape"].size)),
+        expr=jnp.asarray(arr["expr"]), rotation=jnp.asarray(arr["rotation"]),
+        neck=jnp.asarray(arr["neck_pose"]), jaw=jnp.asarray(arr["jaw_pose"]),
+        eyes=jnp.asarray(arr["eyes_pose"]), translation=jnp.asarray(arr["translation"]),
+        static_offset=None if offset is None else jnp.broadcast_to(
+            jnp.asarray(offset[0]), (t,) + offset.shape[1:]))
+    return arr["shape"].reshape(-1), frames
