@@ -1,0 +1,194 @@
+"""The GaussianAvatars / NeRSemble dataset layout (as written by VHAP), read and written.
+
+    <subject>/transforms_{train,val,test}.json   camera-to-world in OpenGL axes, intrinsics
+    <subject>/images/{ti:05d}_{ci:02d}.png        (white background)
+    <subject>/fg_masks/{ti:05d}_{ci:02d}.png
+    <subject>/flame_param/{ti:05d}.npz            translation, rotation, neck_pose, jaw_pose (1,3);
+                                                  eyes_pose (1,6); shape (S,); expr (1,E)
+    <subject>/canonical_flame_param.npz           zero pose, jaw_pose [[0.3, 0, 0]], shape
+
+OpenGL axes are converted to ours (OpenCV) by flipping the Y and Z columns of camera-to-world.
+Unlike GaussianAvatars' reader, the principal point (cx, cy) is honoured.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io as _io
+import json
+import os
+
+import numpy as np
+
+from gae_jax.io import atomic_write_bytes
+
+OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+FRAME_FIELDS = ("timestep_index", "camera_index", "cx", "cy", "fl_x", "fl_y", "h", "w",
+                "transform_matrix", "file_path", "flame_param_path")
+FLAME_KEYS = {"translation": 3, "rotation": 3, "neck_pose": 3, "jaw_pose": 3, "eyes_pose": 6}
+CANONICAL_JAW = 0.3
+
+
+@dataclasses.dataclass(frozen=True)
+class Frame:
+    """One (timestep, camera) record of a split, resolved to absolute paths."""
+
+    timestep: int
+    camera: int
+    intrinsics: np.ndarray  # (4,) fx, fy, cx, cy
+    w2c: np.ndarray  # (4, 4) OpenCV axes
+    width: int
+    height: int
+    image_path: str
+    mask_path: str | None
+    flame_param_path: str
+
+
+def _write_json(path, obj):
+    atomic_write_bytes(path, json.dumps(obj, indent=1).encode())
+
+
+def _npz_bytes(**arrays) -> bytes:
+    buf = _io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def _png_bytes(image: np.ndarray) -> bytes:
+    import cv2
+
+    arr = image[..., ::-1] if image.ndim == 3 else image
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr))
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def export_scene(scene, folder: str) -> dict:
+    """Writes a `data.Scene`'s identity-A data in the NeRSemble layout.
+
+    Splits as in GaussianAvatars: train = training sequences x training cameras, val = training
+    sequences x held-out cameras (novel view), test = the held-out sequence x training cameras
+    (self-reenactment). Returns {split: number of frames}.
+    """
+    names = [n for n, s in scene.sequences.items() if s.identity == "A"]
+    timesteps = []  # (sequence name, frame) per global timestep index
+    for name in names:
+        timesteps += [(name, t) for t in range(scene.sequences[name].num_frames)]
+    shape = np.asarray(scene.shapes["A"], np.float32)
+    os.makedirs(os.path.join(folder, "flame_param"), exist_ok=True)
+    for ti, (name, t) in enumerate(timesteps):
+        seq = scene.sequences[name]
+        atomic_write_bytes(os.path.join(folder, "flame_param", f"{ti:05d}.npz"), _npz_bytes(
+            translation=seq.translation[t][None], rotation=seq.rotation[t][None],
+            neck_pose=seq.neck[t][None], jaw_pose=seq.jaw[t][None], eyes_pose=seq.eyes[t][None],
+            shape=shape, expr=seq.expr[t][None]))
+    z3 = np.zeros((1, 3))
+    atomic_write_bytes(os.path.join(folder, "canonical_flame_param.npz"), _npz_bytes(
+        translation=z3, rotation=z3, neck_pose=z3, jaw_pose=np.array([[CANONICAL_JAW, 0, 0]]),
+        eyes_pose=np.zeros((1, 6)), shape=shape,
+        expr=np.zeros((1, scene.sequences[names[0]].expr.shape[1]))))
+
+    splits = {"train": ([n for n in names if scene.sequences[n].split == "train"],
+                        scene.train_cameras),
+              "val": ([n for n in names if scene.sequences[n].split == "train"],
+                      scene.held_out_cameras),
+              "test": ([n for n in names if scene.sequences[n].split == "self_reenactment"],
+                       scene.train_cameras)}
+    counts = {}
+    for split, (seqs, cams) in splits.items():
+        frames = []
+        for ti, (name, t) in enumerate(timesteps):
+            if name not in seqs:
+                continue
+            for ci in cams:
+                fx, fy, cx, cy = (float(v) for v in scene.intrinsics[ci])
+                c2w = np.linalg.inv(scene.w2c[ci].astype(np.float64)) @ OPENGL_TO_OPENCV
+                stem = f"{ti:05d}_{ci:02d}"
+                image_rel, mask_rel = f"images/{stem}.png", f"fg_masks/{stem}.png"
+                for rel, arr in ((image_rel, scene.images[name][ci, t]),
+                                 (mask_rel, (scene.regions[name][ci, t] >= 0).astype(np.uint8)
+                                  * 255)):
+                    path = os.path.join(folder, rel)
+                    if not os.path.exists(path):
+                        atomic_write_bytes(path, _png_bytes(arr))
+                frames.append(dict(
+                    timestep_index=ti, timestep_index_original=ti, timestep_id=f"{name}_{t:03d}",
+                    camera_index=int(ci), camera_id=f"{ci:02d}", cx=cx, cy=cy, fl_x=fx, fl_y=fy,
+                    h=scene.height, w=scene.width,
+                    camera_angle_x=float(2 * np.arctan(scene.width / (2 * fx))),
+                    camera_angle_y=float(2 * np.arctan(scene.height / (2 * fy))),
+                    transform_matrix=c2w.tolist(), file_path=image_rel, fg_mask_path=mask_rel,
+                    flame_param_path=f"flame_param/{ti:05d}.npz"))
+        _write_json(os.path.join(folder, f"transforms_{split}.json"), dict(frames=frames))
+        counts[split] = len(frames)
+    return counts
+
+
+def load_split(folder: str, split: str) -> list:
+    """Reads transforms_{split}.json into `Frame`s (OpenCV cameras), checking every field."""
+    path = os.path.join(folder, f"transforms_{split}.json")
+    try:
+        with open(path, encoding="utf-8") as f:
+            meta = json.load(f)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: no such file") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
+        raise ValueError(f"{path}: expected an object with a 'frames' list")
+    frames = []
+    for i, fr in enumerate(meta["frames"]):
+        missing = [k for k in FRAME_FIELDS if k not in fr and k not in meta]
+        if missing:
+            raise ValueError(f"{path}: frame {i} lacks {missing}")
+        get = lambda k: fr.get(k, meta.get(k))  # noqa: E731 (shared intrinsics may be top-level)
+        c2w = np.asarray(get("transform_matrix"), np.float64)
+        if c2w.shape != (4, 4) or not np.all(np.isfinite(c2w)):
+            raise ValueError(f"{path}: frame {i} 'transform_matrix' must be a finite 4x4 matrix")
+        intr = np.asarray([get("fl_x"), get("fl_y"), get("cx"), get("cy")], np.float64)
+        if not np.all(np.isfinite(intr)) or intr[0] <= 0 or intr[1] <= 0:
+            raise ValueError(f"{path}: frame {i} has invalid intrinsics {intr.tolist()}")
+        mask = get("fg_mask_path") if "fg_mask_path" in fr or "fg_mask_path" in meta else None
+        frames.append(Frame(
+            timestep=int(get("timestep_index")), camera=int(get("camera_index")),
+            intrinsics=intr, w2c=np.linalg.inv(c2w @ OPENGL_TO_OPENCV),
+            width=int(get("w")), height=int(get("h")),
+            image_path=os.path.join(folder, get("file_path")),
+            mask_path=None if mask is None else os.path.join(folder, mask),
+            flame_param_path=os.path.join(folder, get("flame_param_path"))))
+    return frames
+
+
+def load_flame_param(path: str) -> dict:
+    """Reads one per-timestep flame_param .npz into name -> array, checking keys and shapes."""
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            arr = {k: np.asarray(f[k], np.float32) for k in f.files}
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: no such file") from None
+    except Exception as exc:
+        raise ValueError(f"{path}: not a readable .npz ({exc})") from exc
+    for key, width in FLAME_KEYS.items():
+        if key not in arr:
+            raise ValueError(f"{path}: missing '{key}'")
+        if arr[key].shape != (1, width):
+            raise ValueError(f"{path}: '{key}' must have shape (1, {width}), got "
+                             f"{arr[key].shape}")
+    for key in ("shape", "expr"):
+        if key not in arr:
+            raise ValueError(f"{path}: missing '{key}'")
+    for key, value in arr.items():
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"{path}: '{key}' contains NaN or infinite values")
+    return arr
+
+
+def read_image(path: str) -> np.ndarray:
+    """(H, W, 3) uint8 RGB (or (H, W) for masks) from a PNG, with a clear error."""
+    import cv2
+
+    img = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ValueError(f"{path}: missing or unreadable image")
+    return img[..., ::-1].copy() if img.ndim == 3 else img
