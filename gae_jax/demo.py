@@ -22,7 +22,7 @@ import numpy as np
 from gae_jax import avatar, flame, head, splat, wabe
 from gae_jax.camera import look_at_w2c, make_camera
 from gae_jax.compile import fast_jit
-from gae_jax.io import atomic_write_bytes
+from gae_jax.io import atomic_write_bytes, encode_png
 
 
 def random_frustum_scene(num: int, width: int, height: int, seed: int = 0,
@@ -50,17 +50,6 @@ def random_frustum_scene(num: int, width: int, height: int, seed: int = 0,
                         jnp.asarray(rng.uniform(0.05, 0.99, num), jnp.float32),
                         jnp.asarray(rng.uniform(0.0, 1.0, (num, 3)), jnp.float32))
     return g, camera
-
-
-def encode_png(image: np.ndarray) -> bytes:
-    """(H, W, 3) float image in [0, 1] -> PNG bytes."""
-    import cv2
-
-    rgb = (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    ok, buf = cv2.imencode(".png", rgb[..., ::-1])
-    if not ok:
-        raise RuntimeError("PNG encoding failed")
-    return buf.tobytes()
 
 
 def head_poses(model):

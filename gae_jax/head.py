@@ -208,7 +208,7 @@ def _mouth_cavity(b: _Builder):
 
 def _teeth(b: _Builder, upper: bool):
     """A row of teeth: a thin curved slab along an arc behind the lips."""
-    cols, rows = 17, 2
+    cols = 17
     ang = np.linspace(-1.0, 1.0, cols)
     radius = 0.020
     cz = 0.075 - radius - (0.0 if upper else 0.002)

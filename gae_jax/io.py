@@ -97,3 +97,18 @@ def require(properties: dict, names, path: str) -> np.ndarray:
     if not np.all(np.isfinite(out)):
         raise PlyError(f"{path}: non-finite values in {list(names)}")
     return out
+
+
+def encode_png(image) -> bytes:
+    """(H, W, 3) RGB or (H, W) grey image -> PNG bytes; floats are taken as [0, 1]."""
+    import cv2
+
+    arr = np.asarray(image)
+    if arr.dtype != np.uint8:
+        arr = (np.clip(arr, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    if arr.ndim == 3:
+        arr = arr[..., ::-1]
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr))
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()

@@ -20,7 +20,7 @@ import os
 
 import numpy as np
 
-from gae_jax.io import atomic_write_bytes
+from gae_jax.io import atomic_write_bytes, encode_png
 
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 FRAME_FIELDS = ("timestep_index", "camera_index", "cx", "cy", "fl_x", "fl_y", "h", "w",
@@ -52,16 +52,6 @@ def _npz_bytes(**arrays) -> bytes:
     buf = _io.BytesIO()
     np.savez(buf, **arrays)
     return buf.getvalue()
-
-
-def _png_bytes(image: np.ndarray) -> bytes:
-    import cv2
-
-    arr = image[..., ::-1] if image.ndim == 3 else image
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr))
-    if not ok:
-        raise RuntimeError("PNG encoding failed")
-    return buf.tobytes()
 
 
 def export_scene(scene, folder: str) -> dict:
@@ -111,7 +101,7 @@ def export_scene(scene, folder: str) -> dict:
                                   * 255)):
                     path = os.path.join(folder, rel)
                     if not os.path.exists(path):
-                        atomic_write_bytes(path, _png_bytes(arr))
+                        atomic_write_bytes(path, encode_png(arr))
                 frames.append(dict(
                     timestep_index=ti, timestep_index_original=ti, timestep_id=f"{name}_{t:03d}",
                     camera_index=int(ci), camera_id=f"{ci:02d}", cx=cx, cy=cy, fl_x=fx, fl_y=fy,

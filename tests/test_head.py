@@ -1,7 +1,6 @@
 """The procedural head: FLAME layout, skinning, and occlusions checked by trimesh ray casting."""
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
