@@ -283,9 +283,12 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
         total = sum(s.num_frames for s in sequences.values())
         bar = _progress(total, "ground truth frames", progress)
         for name, seq in sequences.items():
-            per_frame = [render_frame(model, assets.face_regions, colours[seq.identity],
-                                      shapes[seq.identity], seq, t, intrinsics, w2c, size, bg)
-                         for t in range(seq.num_frames) if bar.update(1) or True]
+            per_frame = []
+            for t in range(seq.num_frames):
+                per_frame.append(render_frame(model, assets.face_regions, colours[seq.identity],
+                                              shapes[seq.identity], seq, t, intrinsics, w2c,
+                                              size, bg))
+                bar.update(1)
             images[name] = np.stack([f[0] for f in per_frame], axis=1)
             regions[name] = np.stack([f[1] for f in per_frame], axis=1)
         bar.close()

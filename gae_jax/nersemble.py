@@ -132,7 +132,10 @@ def load_split(folder: str, split: str) -> list:
         missing = [k for k in FRAME_FIELDS if k not in fr and k not in meta]
         if missing:
             raise ValueError(f"{path}: frame {i} lacks {missing}")
-        get = lambda k: fr.get(k, meta.get(k))  # noqa: E731 (shared intrinsics may be top-level)
+
+        def get(key, frame=fr):
+            return frame.get(key, meta.get(key))  # shared intrinsics may sit at the top level
+
         c2w = np.asarray(get("transform_matrix"), np.float64)
         if c2w.shape != (4, 4) or not np.all(np.isfinite(c2w)):
             raise ValueError(f"{path}: frame {i} 'transform_matrix' must be a finite 4x4 matrix")

@@ -63,18 +63,17 @@ def tile_rectangles(means2d, extents, visible, width: int, height: int):
     A pixel column j is touched when |j + 0.5 - mean_x| <= extent_x (same for rows); culled
     Gaussians and Gaussians touching no pixel get an empty range (x1 < x0).
     """
-    tiles_x, tiles_y = grid_size(width, height)
     ext = extents * (1.0 + EXTENT_RELATIVE_MARGIN) + EXTENT_ABSOLUTE_MARGIN
 
-    def axis_range(mean, e, size, tiles):
+    def axis_range(mean, e, size):
         lo = jnp.ceil(jnp.clip(mean - e - 0.5, -1.0, size + 1.0)).astype(jnp.int32)
         hi = jnp.floor(jnp.clip(mean + e - 0.5, -1.0, size + 1.0)).astype(jnp.int32)
         lo = jnp.maximum(lo, 0)
         hi = jnp.minimum(hi, size - 1)
         return lo // TILE_SIZE, jnp.where(hi >= lo, hi // TILE_SIZE, lo // TILE_SIZE - 1)
 
-    x0, x1 = axis_range(means2d[:, 0], ext[:, 0], width, tiles_x)
-    y0, y1 = axis_range(means2d[:, 1], ext[:, 1], height, tiles_y)
+    x0, x1 = axis_range(means2d[:, 0], ext[:, 0], width)
+    y0, y1 = axis_range(means2d[:, 1], ext[:, 1], height)
     empty = ~visible | (x1 < x0) | (y1 < y0)
     return (jnp.where(empty, 0, x0), jnp.where(empty, -1, x1),
             jnp.where(empty, 0, y0), jnp.where(empty, -1, y1))
