@@ -25,9 +25,9 @@ import numpy as np
 
 from gae_jax import flame, head
 from gae_jax.camera import Camera, look_at_w2c, make_camera
-from gae_jax.raycast import raycast
+from gae_jax.raycast import raycast_views
 
-SCENE_VERSION = 1
+SCENE_VERSION = 3
 LIGHT_DIRECTION = np.array([0.35, 0.55, 0.75])  # in head space, towards the light
 AMBIENT = 0.45
 IDENTITY_B_SHAPE = dict(head_width=0.6, nose_length=0.8, jaw_width=-0.6)
@@ -220,19 +220,22 @@ def identity_albedo(assets: head.HeadAssets, overrides: dict) -> np.ndarray:
 
 
 def render_frame(model, face_regions, vertex_colors, shape, sequence: Sequence, frame: int,
-                 intrinsics, w2c, size: int, background):
+                 intrinsics, w2c, size: int, background, supersample: int = 1):
     """Ground truth of one frame from every camera by ray casting the posed, coloured mesh.
 
-    Pass edited `vertex_colors` to get the ideal edit of the same frame.
+    Pass edited `vertex_colors` to get the ideal edit of the same frame; `supersample` rays per
+    pixel per axis anti-alias the colour (see `raycast`).
     Returns images (C, H, W, 3) uint8 and region maps (C, H, W) int8 (-1 background).
     """
     verts = np.asarray(flame.lbs(model, sequence.params(shape, frame)))
     faces = np.asarray(model.faces)
     images = np.zeros((len(intrinsics), size, size, 3), np.uint8)
     regions = np.zeros((len(intrinsics), size, size), np.int8)
-    for c in range(len(intrinsics)):
-        cam = Camera(intrinsics=intrinsics[c], w2c=w2c[c], width=size, height=size)
-        out = raycast(verts, faces, vertex_colors, face_regions, cam, background)
+    cameras = [Camera(intrinsics=k, w2c=m, width=size, height=size)
+               for k, m in zip(intrinsics, w2c)]
+    views = raycast_views(verts, faces, vertex_colors, face_regions, cameras, background,
+                          supersample)
+    for c, out in enumerate(views):
         images[c] = (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8)
         regions[c] = out.regions
     return images, regions
@@ -244,8 +247,8 @@ def _cache_key(params: dict) -> str:
 
 
 def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequence: int = 16,
-                         background: str = "white", cache_dir: str | None = None,
-                         progress: bool = True) -> Scene:
+                         background: str = "white", supersample: int = 3,
+                         cache_dir: str | None = None, progress: bool = True) -> Scene:
     """Builds (or loads from the cache) the default scene.
 
     Args:
@@ -253,14 +256,16 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
       num_cameras: rig size (camera `HELD_OUT_CAMERA` is held out for novel views).
       frames_per_sequence: frames in each of the 7 sequences.
       background: "white" or "black".
+      supersample: ground-truth rays per pixel per axis (3: 9 rays, anti-aliased edges).
       cache_dir: where cached scenes live; `$GAE_JAX_CACHE` or ~/.cache/gae_jax when None.
     """
-    if size < 8 or num_cameras < 2 or frames_per_sequence < 2:
-        raise ValueError("need size >= 8, num_cameras >= 2 and frames_per_sequence >= 2")
+    if size < 8 or num_cameras < 2 or frames_per_sequence < 2 or supersample < 1:
+        raise ValueError("need size >= 8, num_cameras >= 2, frames_per_sequence >= 2 and "
+                         "supersample >= 1")
     if background not in ("white", "black"):
         raise ValueError(f"background must be 'white' or 'black', got {background!r}")
     key = _cache_key(dict(size=size, num_cameras=num_cameras, frames=frames_per_sequence,
-                          background=background))
+                          background=background, supersample=supersample))
     cache_dir = cache_dir or os.environ.get("GAE_JAX_CACHE") or os.path.join(
         os.path.expanduser("~"), ".cache", "gae_jax")
     path = os.path.join(cache_dir, f"scene-{key}.npz")
@@ -287,7 +292,7 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
             for t in range(seq.num_frames):
                 per_frame.append(render_frame(model, assets.face_regions, colours[seq.identity],
                                               shapes[seq.identity], seq, t, intrinsics, w2c,
-                                              size, bg))
+                                              size, bg, supersample))
                 bar.update(1)
             images[name] = np.stack([f[0] for f in per_frame], axis=1)
             regions[name] = np.stack([f[1] for f in per_frame], axis=1)

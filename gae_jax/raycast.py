@@ -1,9 +1,11 @@
 """Ground-truth images by ray casting a coloured triangle mesh (trimesh, embree when installed).
 
 An independent renderer: it shares nothing with `splat` but the `Camera` convention (OpenCV axes,
-pixel centres at +0.5). Each pixel's ray hits the first triangle; colour is the barycentric
-interpolation of the vertex colours, the region label is the hit triangle's, depth is the camera
-z of the hit. Runs outside jit on numpy arrays.
+pixel centres at +0.5). Each ray hits the first triangle; its colour is the barycentric
+interpolation of the vertex colours. A pixel's colour is the box-filtered mean of
+`supersample` x `supersample` stratified rays (a camera integrates over its pixel; a single ray
+per pixel leaves aliased, stair-stepped edges no smooth renderer can match). The region label,
+depth and face come from the pixel's centre ray. Runs outside jit on numpy arrays.
 """
 
 from __future__ import annotations
@@ -27,27 +29,69 @@ class RaycastImage:
     faces: np.ndarray
 
 
-def camera_rays(camera: Camera):
-    """World-space ray origins and unit directions, (H*W, 3) each, row-major over pixels."""
+def camera_rays(camera: Camera, offset=(0.5, 0.5)):
+    """World-space ray origins and unit directions, (H*W, 3) each, row-major over pixels.
+
+    offset: (x, y) position of the ray inside each pixel, in pixels (0.5, 0.5 = centre).
+    """
     fx, fy, cx, cy = (float(v) for v in np.asarray(camera.intrinsics, np.float64))
     w2c = np.asarray(camera.w2c, np.float64)
     rot = w2c[:3, :3]
     eye = -rot.T @ w2c[:3, 3]
-    ys, xs = np.mgrid[0:camera.height, 0:camera.width] + 0.5
+    ys, xs = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
+    xs, ys = xs + offset[0], ys + offset[1]
     d_cam = np.stack([(xs - cx) / fx, (ys - cy) / fy, np.ones_like(xs)], -1).reshape(-1, 3)
     d_world = d_cam @ rot
     d_world /= np.linalg.norm(d_world, axis=1, keepdims=True)
     return np.broadcast_to(eye, d_world.shape).copy(), d_world
 
 
+def _first_hits(mesh, vertices, faces, colors, origins, dirs, background):
+    """Colour (N, 3), face (N,) (-1 = miss) and hit point (N, 3) of each ray's first hit."""
+    face_of = np.asarray(mesh.ray.intersects_first(origins, dirs), np.int64)
+    hit = face_of >= 0
+    image = np.tile(np.asarray(background, np.float64), (origins.shape[0], 1))
+    points = np.full(origins.shape, np.nan)
+    if hit.any():
+        tri = vertices[faces[face_of[hit]]]
+        o, d = origins[hit], dirs[hit]
+        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+        normal = np.cross(e1, e2)
+        # Ray-plane intersection in float64, then barycentrics of the hit point.
+        t = np.einsum("nc,nc->n", normal, tri[:, 0] - o) / np.einsum("nc,nc->n", normal, d)
+        p = o + t[:, None] * d
+        rel = p - tri[:, 0]
+        d11, d12, d22 = (np.einsum("nc,nc->n", a, b) for a, b in ((e1, e1), (e1, e2), (e2, e2)))
+        r1, r2 = np.einsum("nc,nc->n", rel, e1), np.einsum("nc,nc->n", rel, e2)
+        det = d11 * d22 - d12 * d12
+        l1, l2 = (d22 * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
+        bary = np.clip(np.stack([1 - l1 - l2, l1, l2], -1), 0, 1)
+        bary /= bary.sum(-1, keepdims=True)
+        image[hit] = np.einsum("nk,nkc->nc", bary, colors[faces[face_of[hit]]])
+        points[hit] = p
+    return image, face_of, points
+
+
 def raycast(vertices, faces, vertex_colors, face_regions, camera: Camera,
-            background=(1.0, 1.0, 1.0)) -> RaycastImage:
+            background=(1.0, 1.0, 1.0), supersample: int = 1) -> RaycastImage:
     """Renders a mesh by ray casting.
 
     Args:
       vertices: (V, 3) world positions; faces: (F, 3) int; vertex_colors: (V, 3) in [0, 1];
       face_regions: (F,) int labels; background: (3,) colour of pixels that miss.
+      supersample: rays per pixel along each axis for the colour (1 = the centre ray only).
     """
+    return raycast_views(vertices, faces, vertex_colors, face_regions, [camera], background,
+                         supersample, workers=1)[0]
+
+
+def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, background=(1.0, 1.0, 1.0),
+                  supersample: int = 1, workers: int | None = None) -> list[RaycastImage]:
+    """`raycast` of one mesh from several cameras, sharing one acceleration structure across
+    `workers` threads (embree releases the GIL; None = one per CPU)."""
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
     import trimesh
 
     vertices = np.asarray(vertices, np.float64)
@@ -60,23 +104,40 @@ def raycast(vertices, faces, vertex_colors, face_regions, camera: Camera,
         raise ValueError(f"vertex_colors must be {vertices.shape}, got {colors.shape}")
     if regions.shape != (faces.shape[0],):
         raise ValueError(f"face_regions must be ({faces.shape[0]},), got {regions.shape}")
+    if supersample < 1:
+        raise ValueError(f"supersample must be >= 1, got {supersample}")
     mesh = trimesh.Trimesh(vertices, faces, process=False)
-    origins, dirs = camera_rays(camera)
-    locations, ray_index, tri_index = mesh.ray.intersects_location(origins, dirs,
-                                                                  multiple_hits=False)
-    n = origins.shape[0]
-    face_of = np.full(n, -1, np.int64)
-    face_of[ray_index] = tri_index
-    image = np.tile(np.asarray(background, np.float64), (n, 1))
-    depth = np.full(n, np.inf)
-    if len(ray_index):
-        tri = vertices[faces[tri_index]]
-        bary = trimesh.triangles.points_to_barycentric(tri, locations)
-        image[ray_index] = np.einsum("nk,nkc->nc", bary, colors[faces[tri_index]])
-        w2c = np.asarray(camera.w2c, np.float64)
-        depth[ray_index] = locations @ w2c[2, :3] + w2c[2, 3]
+    mesh.ray.intersects_first(np.zeros((1, 3)), np.ones((1, 3)))  # build the BVH once, up front
+
+    def view(camera):
+        return _view(mesh, vertices, faces, colors, regions, camera, background, supersample)
+
+    workers = workers or os.cpu_count() or 1
+    if workers == 1 or len(cameras) == 1:
+        return [view(c) for c in cameras]
+    with ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(view, cameras))
+
+
+def _view(mesh, vertices, faces, colors, regions, camera, background, supersample):
+    image, face_of, points = _first_hits(mesh, vertices, faces, colors, *camera_rays(camera),
+                                         background)
+    if supersample > 1:
+        total = np.zeros_like(image)
+        cells = (np.arange(supersample) + 0.5) / supersample
+        for oy in cells:
+            for ox in cells:
+                if ox == oy == 0.5:  # odd counts include the centre ray, already cast
+                    total += image
+                    continue
+                total += _first_hits(mesh, vertices, faces, colors,
+                                     *camera_rays(camera, (ox, oy)), background)[0]
+        image = total / supersample ** 2
+    w2c = np.asarray(camera.w2c, np.float64)
+    hit = face_of >= 0
+    depth = np.where(hit, points @ w2c[2, :3] + w2c[2, 3], np.inf)
     shape = (camera.height, camera.width)
-    region_map = np.where(face_of >= 0, regions[np.maximum(face_of, 0)], -1).astype(np.int32)
+    region_map = np.where(hit, regions[np.maximum(face_of, 0)], -1).astype(np.int32)
     return RaycastImage(image=image.reshape(shape + (3,)).astype(np.float32),
                         regions=region_map.reshape(shape), depth=depth.reshape(shape),
-                        hit=(face_of >= 0).reshape(shape), faces=face_of.reshape(shape))
+                        hit=hit.reshape(shape), faces=face_of.reshape(shape))

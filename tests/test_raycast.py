@@ -54,3 +54,37 @@ def test_bad_shapes_are_rejected():
         raycast(verts, faces, colors[:2], regions, camera)
     with pytest.raises(ValueError, match="face_regions"):
         raycast(verts, faces, colors, regions[:1], camera)
+
+
+def test_supersampled_edge_pixel_is_the_covered_fraction():
+    """A red square whose right edge crosses pixel column 10 at 0.4 of its width: with 5 x 5
+    rays (at 0.1, 0.3, ..., 0.9) exactly 2 of 5 columns of rays hit, so the pixel is 40 % red."""
+    camera = make_camera(np.eye(4), 20, 12, fov_degrees=50.0)
+    fx, fy, cx, cy = np.asarray(camera.intrinsics, np.float64)
+    z, edge = 2.0, (10.4 - cx) / fx * 2.0
+    verts = np.array([[-5, -5, z], [edge, -5, z], [edge, 5, z], [-5, 5, z]], float)
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    colors = np.tile([1.0, 0.0, 0.0], (4, 1))
+    out = raycast(verts, faces, colors, np.array([1, 1]), camera, background=(1, 1, 1),
+                  supersample=5)
+    np.testing.assert_allclose(out.image[:, 10], np.tile([1.0, 0.6, 0.6], (12, 1)), atol=1e-5)
+    np.testing.assert_allclose(out.image[:, :10], 0 * out.image[:, :10] + [1, 0, 0], atol=1e-5)
+    np.testing.assert_allclose(out.image[:, 11:], 1.0, atol=1e-6)
+    # Labels and depth come from the centre ray, which misses at column 10.
+    assert np.all(out.regions[:, 10] == -1) and np.all(out.regions[:, 9] == 1)
+    single = raycast(verts, faces, colors, np.array([1, 1]), camera, background=(1, 1, 1))
+    np.testing.assert_array_equal(single.regions, out.regions)
+    with pytest.raises(ValueError, match="supersample"):
+        raycast(verts, faces, colors, np.array([1, 1]), camera, supersample=0)
+
+
+def test_threaded_views_equal_one_at_a_time():
+    from gae_jax.raycast import raycast_views
+
+    verts, faces, colors, regions = two_triangles()
+    cameras = [make_camera(np.eye(4), 24, 16, fov_degrees=f) for f in (40.0, 55.0, 70.0)]
+    serial = raycast_views(verts, faces, colors, regions, cameras, supersample=3, workers=1)
+    threaded = raycast_views(verts, faces, colors, regions, cameras, supersample=3, workers=2)
+    for a, b in zip(serial, threaded):
+        np.testing.assert_array_equal(a.image, b.image)
+        np.testing.assert_array_equal(a.regions, b.regions)
