@@ -40,6 +40,7 @@ LID_OPEN_ANGLE = np.deg2rad(55.0)  # polar angle from +y that the open upper lid
 LID_CLOSED_ANGLE = np.deg2rad(150.0)
 IRIS_ANGLE = np.deg2rad(22.0)  # angular radius of the iris around the gaze axis (+z)
 PUPIL_ANGLE = np.deg2rad(9.0)
+EYE_CAP_DEGREES = 110.0  # the eyeball is modelled up to this angle from the gaze
 JAW_PIVOT = np.array([0.0, -0.015, 0.0])
 NECK_PIVOT = np.array([0.0, -0.075, -0.01])
 ROOT = np.array([0.0, -0.11, -0.02])
@@ -90,9 +91,12 @@ def _grid_faces(rows: int, cols: int, wrap: bool) -> np.ndarray:
     return np.asarray(faces, np.int64)
 
 
-def _sphere(centre, radius, rows, cols, theta_max=np.pi, axis_up=True):
-    """UV sphere (or cap up to polar angle theta_max from +y): vertices (rows*cols, 3), faces."""
-    theta = np.linspace(1e-3, theta_max, rows)
+def _sphere(centre, radius, rows, cols, theta_max=np.pi, axis_up=True, theta=None):
+    """UV sphere (or cap up to polar angle theta_max from +y): vertices (rows*cols, 3), faces.
+
+    `theta` (rows,) gives the rings' polar angles explicitly."""
+    theta = np.linspace(1e-3, theta_max, rows) if theta is None else np.asarray(theta)
+    rows = len(theta)
     phi = np.linspace(0, 2 * np.pi, cols, endpoint=False)
     t, p = np.meshgrid(theta, phi, indexing="ij")
     unit = np.stack([np.sin(t) * np.sin(p), np.cos(t), np.sin(t) * np.cos(p)], -1).reshape(-1, 3)
@@ -237,8 +241,13 @@ def _teeth(b: _Builder, upper: bool):
 
 
 def _eye(b: _Builder, side: int):
+    """The visible cap of an eyeball around its gaze (+z), rings on the pupil and iris edges;
+    the back, always inside the socket, is left out."""
     centre = EYE_CENTRES[side]
-    verts, faces, unit = _sphere(centre, EYE_RADIUS, 24, 32)
+    rings = np.deg2rad([0.06, 9.0, 22.0, 34.0, 48.0, 63.0, 78.0, 94.0, EYE_CAP_DEGREES])
+    _, faces, up = _sphere((0.0, 0.0, 0.0), 1.0, 0, 16, theta=rings)
+    unit = np.stack([up[:, 0], -up[:, 2], up[:, 1]], -1)  # rotate the cap's axis from +y to +z
+    verts = np.asarray(centre) + EYE_RADIUS * unit
     gaze = np.arccos(np.clip(unit[faces].mean(1)[:, 2] / np.linalg.norm(
         unit[faces].mean(1), axis=1), -1, 1))
     regions = np.full(len(faces), REGION_ID["sclera"])
@@ -247,7 +256,7 @@ def _eye(b: _Builder, side: int):
     vgaze = np.arccos(np.clip(unit[:, 2], -1, 1))
     colors = np.tile(ALBEDO["sclera"], (len(verts), 1))
     colors[vgaze < IRIS_ANGLE + 0.03] = ALBEDO["iris"]
-    colors[vgaze < PUPIL_ANGLE] = ALBEDO["pupil"]
+    colors[vgaze < PUPIL_ANGLE + 1e-6] = ALBEDO["pupil"]
     b.add(verts, faces, regions, colors, _one_hot(len(verts), 3 + side))
 
 
