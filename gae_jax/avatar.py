@@ -187,10 +187,13 @@ def _concat(a: Avatar, b: Avatar) -> Avatar:
     return jax.tree_util.tree_map(lambda x, y: jnp.concatenate([x, y]), a, b)
 
 
-def prune(avatar: Avatar, remove, num_faces: int) -> Avatar:
-    """Drops Gaussians where `remove` (N,) is True, keeping at least one per face.
+def prune(avatar: Avatar, remove, num_faces: int, return_source: bool = False,
+          keep_every_face: bool = True):
+    """Drops Gaussians where `remove` (N,) is True, by default keeping at least one per face.
 
-    Where every Gaussian of a face is marked, the most opaque one survives.
+    Where every Gaussian of a face is marked, the most opaque one survives unless
+    `keep_every_face` is False (e.g. faces no camera ever sees). With `return_source`
+    also returns (M,) the old index of every kept Gaussian (to carry optimiser state along).
     """
     remove = np.asarray(remove, bool).copy()
     if remove.shape != (avatar.num,):
@@ -199,21 +202,24 @@ def prune(avatar: Avatar, remove, num_faces: int) -> Avatar:
     kept_per_face = np.bincount(binding[~remove], minlength=num_faces)
     orphaned = np.flatnonzero((kept_per_face == 0) & (np.bincount(binding, minlength=num_faces)
                                                        > 0))
-    if orphaned.size:
+    if orphaned.size and keep_every_face:
         logits = np.asarray(avatar.opacity_logits)
         order = np.lexsort((-logits, binding))  # by face, most opaque first
         first = order[np.r_[True, binding[order][1:] != binding[order][:-1]]]
         rescue = first[np.isin(binding[first], orphaned)]
         remove[rescue] = False
-    return _take(avatar, np.flatnonzero(~remove))
+    source = np.flatnonzero(~remove)
+    pruned = _take(avatar, source)
+    return (pruned, source) if return_source else pruned
 
 
-def densify(avatar: Avatar, clone, split, key) -> Avatar:
+def densify(avatar: Avatar, clone, split, key, return_source: bool = False):
     """Clones Gaussians where `clone` is True and splits those where `split` is True.
 
     Clones copy their parent. A split parent is replaced by two children whose means are drawn
     from N(0, parent scale) in the parent's local frame (local units throughout) and whose
-    scales are the parent's / 1.6. Children keep the parent's binding and region.
+    scales are the parent's / 1.6. Children keep the parent's binding and region. With
+    `return_source` also returns (M,) the old index each new Gaussian came from.
     """
     clone, split = np.asarray(clone, bool), np.asarray(split, bool)
     if clone.shape != (avatar.num,) or split.shape != (avatar.num,):
@@ -230,4 +236,10 @@ def densify(avatar: Avatar, clone, split, key) -> Avatar:
             children, means=children.means + offsets,
             log_scales=children.log_scales - np.log(SPLIT_SCALE_DIVISOR))
     kept = _take(avatar, np.flatnonzero(~split))
-    return _concat(_concat(kept, _take(avatar, np.flatnonzero(clone))), children)
+    grown = _concat(_concat(kept, _take(avatar, np.flatnonzero(clone))), children)
+    if not return_source:
+        return grown
+    parents_index = np.flatnonzero(split)
+    source = np.concatenate([np.flatnonzero(~split), np.flatnonzero(clone), parents_index,
+                             parents_index])
+    return grown, source

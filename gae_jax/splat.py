@@ -192,3 +192,13 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
                         overflow_tiles=bins.overflow_tiles, dropped_pairs=bins.dropped_pairs,
                         num_slots=bins.num_slots)
     return RenderOutput(image=image, alpha=alpha, depth=depth, stats=stats)
+
+
+def tile_load(gaussians: Gaussians, camera: Camera) -> jax.Array:
+    """() int32: the most Gaussians touching any one tile, i.e. the `tile_capacity` at which
+    this view renders without overflow."""
+    proj = project(gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities,
+                   camera)
+    bins = bin_gaussians(proj.means2d, proj.extents, proj.depths, proj.visible, camera.width,
+                         camera.height, 1, None)
+    return jnp.max(bins.counts)

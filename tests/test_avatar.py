@@ -130,6 +130,10 @@ def test_prune_never_removes_the_last_gaussian_of_a_face():
     survivor = np.asarray(pruned.opacity_logits)[np.asarray(pruned.binding) == 0][0]
     assert survivor == logits[np.asarray(a.binding) == 0].max()
     np.testing.assert_array_equal(pruned.regions, pruned.binding)
+    again, source = av.prune(a, remove, 20, return_source=True)
+    np.testing.assert_array_equal(np.asarray(again.opacity_logits), logits[source])
+    emptied = av.prune(a, remove, 20, keep_every_face=False)
+    assert emptied.num == 60 - remove.sum() and 0 not in np.asarray(emptied.binding)
 
 
 def test_densify_children_inherit_binding_and_split_shrinks():
@@ -147,6 +151,12 @@ def test_densify_children_inherit_binding_and_split_shrinks():
     kids = np.asarray(d.binding) == 5
     np.testing.assert_allclose(np.asarray(d.log_scales)[kids], -np.log(1.6), atol=1e-6)
     assert not np.allclose(np.asarray(d.means)[kids][0], np.asarray(d.means)[kids][1])
+    same, source = av.densify(a, clone, split, jax.random.PRNGKey(4), return_source=True)
+    np.testing.assert_array_equal(np.asarray(same.binding), np.asarray(a.binding)[source])
+    np.testing.assert_array_equal(np.asarray(same.colors), np.asarray(a.colors)[source])
+    unchanged = ~np.isin(source, np.flatnonzero(split))
+    np.testing.assert_array_equal(np.asarray(same.means)[unchanged],
+                                  np.asarray(a.means)[source[unchanged]])
 
 
 def test_deform_vmaps_over_frames(x64):
