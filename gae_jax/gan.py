@@ -1,0 +1,75 @@
+"""The conditional PatchGAN discriminator, its pairs and its losses (temporal adversarial learning).
+
+Architecture (GenN2N / GaussianAvatar-Editor `thmodel.py`): 6 input channels, 4x4 convolutions
+with padding 1, 64-128-128-128-1 channels, strides 2-2-2-1-1, LeakyReLU 0.2 after all but the
+last, no normalisation, weights N(0, 0.02) (biases start at zero here; PyTorch draws them
+uniformly). The output is a map of logits, one per patch; the sigmoid lives inside the losses,
+which are written on logits so that they never take log(0).
+
+Pairs (`make_pairs`), images (..., H, W, 3) in [0, 1]:
+  * "paper": real = (E_t, E_t - E_k), fake = (C_t, C_t - E_k), E_k the edit of an adjacent time;
+  * "code":  real = (E_t, 0),         fake = (E_t, C_t - E_t), as the authors' released code.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+PAIR_MODES = ("paper", "code")
+LEAK = 0.2
+MIN_SIZE = 24  # smallest input side whose patch map is not empty
+
+
+class Discriminator(nn.Module):
+    """PatchGAN: (B, H, W, 6) -> (B, h, w, 1) logits."""
+
+    features: Sequence[int] = (64, 128, 128, 128)
+    strides: Sequence[int] = (2, 2, 2, 1)
+    param_dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        if x.shape[-1] != 6 or min(output_size(x.shape[-3]), output_size(x.shape[-2])) < 1:
+            raise ValueError(f"the discriminator takes (B, H, W, 6) pairs with H, W >= "
+                             f"{MIN_SIZE}, got {x.shape}")
+        init = nn.initializers.normal(0.02)
+        for f, s in zip(self.features, self.strides):
+            x = nn.Conv(f, (4, 4), strides=(s, s), padding=((1, 1), (1, 1)), kernel_init=init,
+                        param_dtype=self.param_dtype)(x)
+            x = nn.leaky_relu(x, LEAK)
+        return nn.Conv(1, (4, 4), strides=(1, 1), padding=((1, 1), (1, 1)), kernel_init=init,
+                       param_dtype=self.param_dtype)(x)
+
+
+def output_size(size: int, strides: Sequence[int] = (2, 2, 2, 1, 1)) -> int:
+    """Side of the logit map for a square input (k 4, padding 1)."""
+    for s in strides:
+        size = (size + 2 - 4) // s + 1
+    return size
+
+
+def make_pairs(mode: str, edit_t: jax.Array, edit_k: jax.Array, render_t: jax.Array):
+    """(real, fake) pairs, each (..., H, W, 6), for the given pair `mode`."""
+    if mode == "paper":
+        real = jnp.concatenate([edit_t, edit_t - edit_k], axis=-1)
+        fake = jnp.concatenate([render_t, render_t - edit_k], axis=-1)
+    elif mode == "code":
+        real = jnp.concatenate([edit_t, jnp.zeros_like(edit_t)], axis=-1)
+        fake = jnp.concatenate([edit_t, render_t - edit_t], axis=-1)
+    else:
+        raise ValueError(f"pair mode must be one of {PAIR_MODES}, got {mode!r}")
+    return real, fake
+
+
+def d_loss(real_logits: jax.Array, fake_logits: jax.Array) -> jax.Array:
+    """L_D = E[-log D(real)] + E[-log(1 - D(fake))] with D = sigmoid(logits)."""
+    return jnp.mean(jax.nn.softplus(-real_logits)) + jnp.mean(jax.nn.softplus(fake_logits))
+
+
+def g_loss(fake_logits: jax.Array) -> jax.Array:
+    """L_G = E[-log D(fake)]."""
+    return jnp.mean(jax.nn.softplus(-fake_logits))

@@ -1,0 +1,95 @@
+"""The PatchGAN against a numpy convolution stack, its losses against the closed form, pairs."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from gae_jax import gan
+
+
+def numpy_conv(x, kernel, bias, stride):
+    """Direct 4x4 convolution, padding 1: x (H, W, Cin), kernel (4, 4, Cin, Cout)."""
+    x = np.pad(x, ((1, 1), (1, 1), (0, 0)))
+    h = (x.shape[0] - 4) // stride + 1
+    w = (x.shape[1] - 4) // stride + 1
+    out = np.zeros((h, w, kernel.shape[-1]))
+    for i in range(h):
+        for j in range(w):
+            patch = x[i * stride:i * stride + 4, j * stride:j * stride + 4]
+            out[i, j] = np.einsum("abc,abcd->d", patch, kernel) + bias
+    return out
+
+
+def test_discriminator_equals_a_numpy_convolution_stack(x64):
+    model = gan.Discriminator(features=(4, 5, 5, 3), param_dtype=jnp.float64)
+    x = jax.random.uniform(jax.random.PRNGKey(0), (1, 32, 32, 6), jnp.float64)
+    params = model.init(jax.random.PRNGKey(1), x)
+    # Non-zero biases so that they are checked too.
+    params = jax.tree_util.tree_map_with_path(
+        lambda p, v: v + 0.1 * (len(p) + 1) if "bias" in str(p[-1]) else v, params)
+    out = np.asarray(model.apply(params, x))
+    layers = sorted(params["params"])
+    h = np.asarray(x[0])
+    for n, (name, stride) in enumerate(zip(layers, (2, 2, 2, 1, 1))):
+        layer = params["params"][name]
+        h = numpy_conv(h, np.asarray(layer["kernel"]), np.asarray(layer["bias"]), stride)
+        if n < 4:
+            h = np.where(h > 0, h, gan.LEAK * h)
+    assert out.shape == (1, gan.output_size(32), gan.output_size(32), 1) == (1,) + h.shape
+    np.testing.assert_allclose(out[0], h, rtol=1e-10, atol=1e-12)
+
+
+def test_default_widths_strides_and_init():
+    model = gan.Discriminator()
+    x = jnp.zeros((2, 64, 64, 6))
+    params = model.init(jax.random.PRNGKey(0), x)["params"]
+    kernels = [params[k]["kernel"] for k in sorted(params)]
+    assert [k.shape[-1] for k in kernels] == [64, 128, 128, 128, 1]
+    assert kernels[0].shape == (4, 4, 6, 64)
+    allw = np.concatenate([np.ravel(k) for k in kernels[1:4]])
+    assert abs(allw.std() - 0.02) < 0.001 and abs(allw.mean()) < 0.001
+    assert model.apply({"params": params}, x).shape == (2, 6, 6, 1)  # 64-32-16-8-7-6
+    assert gan.output_size(512) == 62
+
+
+def test_losses_equal_the_closed_form(x64):
+    real = np.array([[-3.0, 0.0], [2.0, 40.0]])
+    fake = np.array([[1.5, -2.0], [0.3, -50.0]])
+    sig = lambda z: 1 / (1 + np.exp(-z))  # noqa: E731
+    d_ref = np.mean(-np.log(sig(real))) + np.mean(-np.log(1 - sig(fake)))
+    g_ref = np.mean(-np.log(sig(fake)))
+    assert float(gan.d_loss(jnp.asarray(real), jnp.asarray(fake))) == pytest.approx(d_ref, 1e-12)
+    assert float(gan.g_loss(jnp.asarray(fake))) == pytest.approx(g_ref, 1e-12)
+    # Extreme logits stay finite (a naive log(sigmoid) gives inf here).
+    assert np.isfinite(float(gan.d_loss(jnp.asarray([1e4]), jnp.asarray([-1e4]))))
+    assert np.isfinite(float(gan.g_loss(jnp.asarray([-1e4]))))
+    check_grads(lambda r, f: gan.d_loss(r, f), (jnp.asarray(real), jnp.asarray(fake)), 2)
+    check_grads(gan.g_loss, (jnp.asarray(fake),), 2)
+
+
+def test_pairs_follow_the_paper_and_the_code():
+    key = jax.random.PRNGKey(3)
+    e_t, e_k, c_t = (jax.random.uniform(k, (5, 7, 3)) for k in jax.random.split(key, 3))
+    real, fake = gan.make_pairs("paper", e_t, e_k, c_t)
+    np.testing.assert_array_equal(real, np.concatenate([e_t, e_t - e_k], -1))
+    np.testing.assert_array_equal(fake, np.concatenate([c_t, c_t - e_k], -1))
+    real, fake = gan.make_pairs("code", e_t, e_k, c_t)
+    np.testing.assert_array_equal(real, np.concatenate([e_t, 0 * e_t], -1))
+    np.testing.assert_array_equal(fake, np.concatenate([e_t, c_t - e_t], -1))
+    with pytest.raises(ValueError, match="pair mode"):
+        gan.make_pairs("both", e_t, e_k, c_t)
+
+
+def test_discriminator_gradient_matches_finite_differences(x64):
+    model = gan.Discriminator(features=(3, 3, 3, 3), param_dtype=jnp.float64)
+    x = jax.random.uniform(jax.random.PRNGKey(0), (1, 24, 24, 6), jnp.float64)
+    # N(0, 0.02) weights make every gradient ~1e-6, where finite differences are all rounding.
+    params = jax.tree_util.tree_map(lambda v: 25.0 * v + 0.05,
+                                    model.init(jax.random.PRNGKey(1), x))
+    with pytest.raises(ValueError, match="H, W >= 24"):
+        model.apply(params, x[:, :16, :16])
+    check_grads(lambda x: jnp.sum(model.apply(params, x) ** 2), (x,), 1, modes=["rev"])
+    check_grads(lambda p: gan.d_loss(model.apply(p, x), model.apply(p, 1 - x)), (params,), 1,
+                modes=["rev"])
