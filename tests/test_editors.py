@@ -1,0 +1,189 @@
+"""Editors: instruction parsing, the semantic edit against its closed form and against the ray-cast
+ideal edit, the noise model, the OpenCV stylisers, and InstructPix2Pix on a tiny local pipeline."""
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from gae_jax import data, head
+from gae_jax.editors import make_editor, semantic, style
+from gae_jax.raycast import raycast
+
+LIPS = head.REGION_ID["lips"]
+
+
+def toy_render():
+    """A 12 x 16 render: lips (shaded lips albedo) in the middle, skin around, -1 at the top."""
+    regions = np.full((12, 16), head.REGION_ID["skin"])
+    regions[4:8, 5:11] = LIPS
+    regions[:2] = -1
+    shade = np.linspace(0.5, 1.0, 16)[None, :].repeat(12, 0)
+    albedo = np.where((regions == LIPS)[..., None], head.ALBEDO["lips"], head.ALBEDO["skin"])
+    image = albedo * shade[..., None]
+    image[:2] = 1.0
+    return image.astype(np.float32), regions, shade
+
+
+def test_parse_understands_the_documented_vocabulary():
+    assert semantic.parse("Turn the lips blue") == semantic.Instruction(
+        "lips", semantic.COLOURS["blue"])
+    assert semantic.parse("make the hair white").region == "hair"
+    assert semantic.parse("give her red eyes").region == "iris"
+    striped = semantic.parse("add green stripes to the skin")
+    assert striped.stripes and striped.region == "skin"
+    with pytest.raises(ValueError, match="regions: .*lips.*colours: .*blue"):
+        semantic.parse("make him look older")
+    with pytest.raises(ValueError, match="no a colour"):
+        semantic.parse("turn the lips sideways")
+    assert style.parse("Make it an oil painting") == "oil"
+    assert style.parse("a pencil sketch") == "sketch"
+    with pytest.raises(ValueError, match="oil"):
+        style.parse("turn the lips blue")
+
+
+def test_semantic_edit_equals_the_closed_form_and_touches_only_the_region():
+    image, regions, shade = toy_render()
+    out = make_editor("semantic").edit(image, image, "turn the lips blue", jax.random.PRNGKey(0),
+                                       dict(regions=regions))
+    lips = regions == LIPS
+    luma = np.array(head.ALBEDO["lips"]) @ semantic.LUMA
+    expected = np.asarray(semantic.COLOURS["blue"]) * (
+        (np.array(head.ALBEDO["lips"]) * shade[..., None]) @ semantic.LUMA / luma)[..., None]
+    np.testing.assert_allclose(out[lips], expected[lips], atol=1e-5)
+    np.testing.assert_array_equal(out[~lips], image[~lips])
+
+
+def test_noise_is_driven_by_the_key_and_zero_noise_ignores_it():
+    image, regions, _ = toy_render()
+    ctx = dict(regions=regions)
+    clean = make_editor("semantic")
+    a = clean.edit(image, image, "turn the lips blue", jax.random.PRNGKey(0), ctx)
+    b = clean.edit(image, image, "turn the lips blue", jax.random.PRNGKey(1), ctx)
+    np.testing.assert_array_equal(a, b)
+    noisy = make_editor("semantic", noise=1.0)
+    edits = [noisy.edit(image, image, "turn the lips blue", jax.random.PRNGKey(k), ctx)
+             for k in range(6)]
+    np.testing.assert_array_equal(
+        edits[0], noisy.edit(image, image, "turn the lips blue", jax.random.PRNGKey(0), ctx))
+    assert all(np.abs(e - edits[0]).max() > 1e-3 for e in edits[1:])
+    assert all(np.abs(e - a).max() > 1e-3 for e in edits)
+    with pytest.raises(ValueError, match="noise"):
+        make_editor("semantic", noise=1.5)
+    with pytest.raises(ValueError, match="context\\['regions'\\]"):
+        clean.edit(image, image, "turn the lips blue", jax.random.PRNGKey(0), {})
+
+
+def test_semantic_edit_of_the_truth_matches_the_ray_cast_ideal_edit():
+    model, assets = head.make_head()
+    scene_shape = np.zeros(model.num_shape)
+    intrinsics, w2c = data.camera_rig(9, 64)
+    camera = data.Camera(intrinsics=intrinsics[data.HELD_OUT_CAMERA],
+                         w2c=w2c[data.HELD_OUT_CAMERA], width=64, height=64)
+    verts = np.asarray(model.v_template)
+    faces = np.asarray(model.faces)
+    shaded = data.shaded_colors(model, assets.vertex_colors, scene_shape)
+    truth = raycast(verts, faces, shaded, assets.face_regions, camera)
+    instruction = semantic.parse("turn the lips blue")
+    albedo = semantic.ideal_albedo(instruction, assets.vertex_colors, faces, assets.face_regions,
+                                   verts)
+    ideal = raycast(verts, faces, data.shaded_colors(model, albedo, scene_shape),
+                    assets.face_regions, camera)
+    edit = make_editor("semantic").edit(truth.image, truth.image, "turn the lips blue",
+                                        jax.random.PRNGKey(0), dict(regions=truth.regions))
+    lips = truth.regions == LIPS
+    assert lips.sum() > 20
+    # Inside the lips the 2D recolour with recovered shading equals the 3D albedo edit.
+    err = np.abs(edit[lips] - ideal.image[lips])
+    assert np.median(err) < 0.02 and err.mean() < 0.04, (np.median(err), err.mean())
+    np.testing.assert_array_equal(edit[~lips], truth.image[~lips])
+    changed = np.abs(ideal.image - truth.image).max(-1) > 1e-6
+    assert changed[lips].all() and not changed[truth.regions == head.REGION_ID["teeth"]].any()
+
+
+def test_stripes_follow_head_space_height():
+    image, regions, _ = toy_render()
+    canonical = np.zeros(image.shape, np.float32)
+    canonical[..., 1] = np.linspace(0, 0.04, 12)[:, None]
+    out = make_editor("semantic").edit(image, image, "add green stripes to the lips",
+                                       jax.random.PRNGKey(0),
+                                       dict(regions=regions, canonical=canonical))
+    changed = np.abs(out - image).max(-1) > 1e-6
+    lips = regions == LIPS
+    np.testing.assert_array_equal(changed, lips & semantic.stripe_on(canonical[..., 1]))
+    assert 0 < changed.sum() < lips.sum()
+
+
+@pytest.mark.parametrize("prompt", ["make it an oil painting", "a pencil sketch",
+                                    "make it a cartoon", "stylize it like a watercolor"])
+def test_style_editor_changes_the_image_and_depends_on_the_key(prompt):
+    rng = np.random.default_rng(0)
+    image = np.clip(rng.random((40, 48, 3)) * 0.2 + np.linspace(0, 0.8, 48)[None, :, None], 0, 1)
+    editor = make_editor("style")
+    a = editor.edit(image, image, prompt, jax.random.PRNGKey(0))
+    b = editor.edit(image, image, prompt, jax.random.PRNGKey(7))
+    assert a.shape == image.shape and a.dtype == np.float32 and 0 <= a.min() and a.max() <= 1
+    assert np.abs(a - image).mean() > 0.01
+    assert np.abs(a - b).max() > 0
+    np.testing.assert_array_equal(a, editor.edit(image, image, prompt, jax.random.PRNGKey(0)))
+
+
+def test_unknown_editor_and_missing_ip2p_folder_are_clear(tmp_path):
+    with pytest.raises(ValueError, match="unknown editor"):
+        make_editor("photoshop")
+    with pytest.raises(FileNotFoundError, match="model_index.json"):
+        make_editor("ip2p", folder=str(tmp_path / "nothing"))
+
+
+def tiny_ip2p_pipeline(folder):
+    """A randomly initialised InstructPix2Pix pipeline small enough for a CPU test."""
+    torch = pytest.importorskip("torch")
+    diffusers = pytest.importorskip("diffusers")
+    transformers = pytest.importorskip("transformers")
+    torch.manual_seed(0)
+    unet = diffusers.UNet2DConditionModel(
+        sample_size=8, in_channels=8, out_channels=4, layers_per_block=1,
+        block_out_channels=(8, 16), down_block_types=("DownBlock2D", "CrossAttnDownBlock2D"),
+        up_block_types=("CrossAttnUpBlock2D", "UpBlock2D"), cross_attention_dim=16,
+        norm_num_groups=4, attention_head_dim=2)
+    vae = diffusers.AutoencoderKL(
+        in_channels=3, out_channels=3, latent_channels=4, block_out_channels=(8, 8),
+        down_block_types=("DownEncoderBlock2D",) * 2, up_block_types=("UpDecoderBlock2D",) * 2,
+        norm_num_groups=4)
+    text = transformers.CLIPTextModel(transformers.CLIPTextConfig(
+        hidden_size=16, intermediate_size=32, num_attention_heads=2, num_hidden_layers=2,
+        vocab_size=300, max_position_embeddings=77))
+    letters = [chr(c) for c in range(ord("a"), ord("z") + 1)]
+    vocab = {"<|startoftext|>": 0, "<|endoftext|>": 1}
+    for ch in letters:
+        vocab[ch] = len(vocab)
+        vocab[ch + "</w>"] = len(vocab)
+    (folder / "tok").mkdir(parents=True)
+    (folder / "tok" / "vocab.json").write_text(json.dumps(vocab))
+    (folder / "tok" / "merges.txt").write_text("#version: 0.2\n")
+    tokenizer = transformers.CLIPTokenizer(str(folder / "tok" / "vocab.json"),
+                                           str(folder / "tok" / "merges.txt"),
+                                           model_max_length=77)
+    pipe = diffusers.StableDiffusionInstructPix2PixPipeline(
+        vae=vae, text_encoder=text, tokenizer=tokenizer, unet=unet,
+        scheduler=diffusers.DDIMScheduler(), safety_checker=None, feature_extractor=None,
+        requires_safety_checker=False)
+    pipe.save_pretrained(str(folder / "pipe"))
+    return str(folder / "pipe")
+
+
+def test_ip2p_edits_with_a_tiny_local_pipeline(tmp_path):
+    folder = tiny_ip2p_pipeline(tmp_path)
+    editor = make_editor("ip2p", folder=folder, steps=3)
+    rng = np.random.default_rng(1)
+    render = rng.random((24, 32, 3)).astype(np.float32)
+    original = rng.random((24, 32, 3)).astype(np.float32)
+    a = editor.edit(render, original, "turn the lips blue", jax.random.PRNGKey(0))
+    b = editor.edit(render, original, "turn the lips blue", jax.random.PRNGKey(0))
+    c = editor.edit(render, original, "turn the lips blue", jax.random.PRNGKey(1))
+    assert a.shape == render.shape and np.all(np.isfinite(a)) and 0 <= a.min() and a.max() <= 1
+    np.testing.assert_array_equal(a, b)
+    assert np.abs(a - c).max() > 0
+    with pytest.raises(ValueError, match="differ in size"):
+        editor.edit(render, original[:8], "x", jax.random.PRNGKey(0))
