@@ -38,6 +38,8 @@ def _sh_from_properties(props: dict, path: str) -> np.ndarray:
         raise PlyError(f"{path}: {num_rest} f_rest properties is not a multiple of 3")
     k = 1 + num_rest // 3
     sh.degree_of(k)
+    if num_rest == 0:
+        return dc[:, None, :]
     rest = require(props, [f"f_rest_{i}" for i in range(num_rest)], path)
     rest = np.transpose(rest.reshape(-1, 3, k - 1), (0, 2, 1))
     return np.concatenate([dc[:, None, :], rest], axis=1)

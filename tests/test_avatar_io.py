@@ -104,3 +104,18 @@ def test_flame_params_round_trip_and_errors(tmp_path):
     np.savez(path, shape=shape)
     with pytest.raises(ValueError, match="missing keys"):
         avatar_io.load_flame_params(path)
+
+
+def test_plain_rgb_avatar_round_trips_as_sh_dc_with_the_same_colours(tmp_path):
+    model, assets = head.make_head()
+    a = av.init_from_mesh(model.v_template, model.faces, assets.vertex_colors,
+                          assets.face_regions, sh_degree=None)
+    path = str(tmp_path / "point_cloud.ply")
+    avatar_io.save_avatar_ply(a, path)
+    assert not any(k.startswith("f_rest_") for k in read_ply(path))
+    b = avatar_io.load_avatar_ply(path, assets.face_regions)
+    assert b.colors.shape == (a.num, 1, 3)
+    camera = make_camera(look_at_w2c([0, 0, 0.55], [0, -0.01, 0], up=(0, 1, 0)), 8, 8)
+    g_b = av.deform(b, model.v_template, model.faces)
+    np.testing.assert_allclose(splat.colors_towards(g_b, camera), np.asarray(a.colors),
+                               atol=1e-6)

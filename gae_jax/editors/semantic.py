@@ -4,8 +4,11 @@ Vocabulary (case-insensitive, any wording around it): a region word, a colour wo
 "stripes" -- "turn the lips blue", "make the hair white", "paint the skin green", "give her red
 eyes", "add green stripes to the skin". `parse` raises an error listing the vocabulary otherwise.
 
-The 2D edit keeps the render's shading and changes the albedo: a pixel of the region becomes
-colour x luminance(pixel) / luminance(region albedo). Regions come from `context["regions"]`
+The 2D edit keeps the shading and changes the albedo: a pixel of the region becomes
+colour x luminance(original pixel) / luminance(region albedo), the shading read from the
+original (unedited) image the editor is conditioned on, as InstructPix2Pix is. (Reading it from
+the render instead feeds back: once the render is partly recoloured its luminance no longer
+measures shading, and a darker target colour darkens the next target, without end.) Regions come from `context["regions"]`
 (labels rendered from the avatar's Gaussians, i.e. what is visible); stripes need
 `context["canonical"]` (head-space positions per pixel) so that they stick to the head.
 
@@ -114,6 +117,9 @@ class SemanticEditor:
     def edit(self, render, original, prompt: str, key, context: dict | None = None):
         instruction = parse(prompt)
         image = as_image(render, "render")
+        source = as_image(original, "original")
+        if source.shape != image.shape:
+            raise ValueError(f"original {source.shape} and render {image.shape} differ in size")
         context = context or {}
         if "regions" not in context:
             raise ValueError("the semantic editor needs context['regions'], the (H, W) region "
@@ -134,7 +140,7 @@ class SemanticEditor:
                 jax.random.normal(keys[0], (3,)), np.float32)
             mask = _jitter_mask(mask, self.noise, keys[1:6])
         base = np.asarray(self.albedo[instruction.region], np.float32)
-        shade = (image @ LUMA) / max(float(base @ LUMA), 1e-3)
+        shade = (source @ LUMA) / max(float(base @ LUMA), 1e-3)
         edited = np.where(mask[..., None], np.clip(colour, 0, 1) * shade[..., None], image)
         if self.noise > 0:
             edited = edited * (1 + 0.04 * self.noise * float(jax.random.normal(keys[6])))
