@@ -61,7 +61,7 @@ class EditConfig:
     editor: str = "semantic"
     editor_noise: float = 0.3
     ip2p_folder: str = ""
-    iterations: int = 120
+    iterations: int = 100
     batch: int = 1
     blend: str = "wabe_grad"
     beta: float = wabe.PAPER_BETA
@@ -79,7 +79,7 @@ class EditConfig:
     adam_eps: float = 1e-4
     d_lr: float = 1e-4
     size: int = 128
-    reconstruct_iterations: int = 400
+    reconstruct_iterations: int = 300
     checkpoint_every: int = 50
     seed: int = 0
 
@@ -518,7 +518,7 @@ def protocol_vertices(session: Session, protocol) -> np.ndarray:
     return rc.posed_vertices(session.model, session.scene, protocol.pairs, identity="A")
 
 
-def evaluate_edit(session: Session, edited: av.Avatar, frames: int = 6) -> dict:
+def evaluate_edit(session: Session, edited: av.Avatar, frames: int = 4) -> dict:
     """Per-protocol, per-region PSNR of the edited avatar against the ideal edit."""
     from gae_jax.editors import semantic
 
