@@ -60,7 +60,7 @@ def test_supersampled_edge_pixel_is_the_covered_fraction():
     """A red square whose right edge crosses pixel column 10 at 0.4 of its width: with 5 x 5
     rays (at 0.1, 0.3, ..., 0.9) exactly 2 of 5 columns of rays hit, so the pixel is 40 % red."""
     camera = make_camera(np.eye(4), 20, 12, fov_degrees=50.0)
-    fx, fy, cx, cy = np.asarray(camera.intrinsics, np.float64)
+    fx, _, cx, _ = np.asarray(camera.intrinsics, np.float64)
     z, edge = 2.0, (10.4 - cx) / fx * 2.0
     verts = np.array([[-5, -5, z], [edge, -5, z], [edge, 5, z], [-5, 5, z]], float)
     faces = np.array([[0, 1, 2], [0, 2, 3]])

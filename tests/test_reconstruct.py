@@ -56,7 +56,6 @@ def test_resume_after_a_crash_equals_the_uninterrupted_run(scene, tmp_path):
 
 
 def test_densify_and_prune_carry_adam_moments_with_each_gaussian(scene):
-    from gae_jax import avatar as av
     from gae_jax import head
 
     model, assets = head.make_head()
