@@ -518,18 +518,25 @@ def protocol_vertices(session: Session, protocol) -> np.ndarray:
     return rc.posed_vertices(session.model, session.scene, protocol.pairs, identity="A")
 
 
-def evaluate_edit(session: Session, edited: av.Avatar, frames: int = 4) -> dict:
-    """Per-protocol, per-region PSNR of the edited avatar against the ideal edit."""
+def ideal_edit(session: Session):
+    """(instruction or None, (V, 3) vertex albedo of the ideal edit). Instructions outside the
+    semantic vocabulary (styles) have no ideal: None and the unedited albedo."""
     from gae_jax.editors import semantic
 
     s = session
     try:
         instruction = semantic.parse(s.config.prompt)
     except ValueError:
-        instruction = None
-    albedo = s.assets.vertex_colors if instruction is None else semantic.ideal_albedo(
-        instruction, s.assets.vertex_colors, s.model.faces, s.assets.face_regions,
-        s.model.v_template)
+        return None, s.assets.vertex_colors
+    return instruction, semantic.ideal_albedo(instruction, s.assets.vertex_colors, s.model.faces,
+                                              s.assets.face_regions, s.model.v_template)
+
+
+def evaluate_edit(session: Session, edited: av.Avatar, frames: int = 4) -> dict:
+    """Per-protocol, per-region PSNR of the edited avatar against the ideal edit."""
+
+    s = session
+    instruction, albedo = ideal_edit(s)
     results = {}
     for name in evaluate.PROTOCOLS:
         protocol = evaluate.protocol_frames(s.scene, name, frames=frames)
@@ -555,19 +562,13 @@ def _to_uint8(x):
 def write_grid(session: Session, edited: av.Avatar, path: str, key) -> None:
     """PNG: rows = views / expressions; columns = original avatar, editor's 2D edit of it,
     ours (edited avatar), ideal edit."""
-    from gae_jax.editors import semantic
 
     s = session
     protocol = evaluate.protocol_frames(s.scene, "self_reenactment", frames=3, cameras=2)
     verts = protocol_vertices(s, protocol)
     original = render_avatar_frames(s, s.original, verts, protocol.cameras)
     ours = render_avatar_frames(s, edited, verts, protocol.cameras)
-    try:
-        instruction = semantic.parse(s.config.prompt)
-        albedo = semantic.ideal_albedo(instruction, s.assets.vertex_colors, s.model.faces,
-                                       s.assets.face_regions, s.model.v_template)
-    except ValueError:
-        albedo = s.assets.vertex_colors
+    _, albedo = ideal_edit(s)
     ideal, regions = evaluate.ideal_frames(s.scene, s.model, s.assets, albedo, protocol)
     editing = Editing(s)
     rows = []

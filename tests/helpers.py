@@ -31,3 +31,11 @@ def random_unit_cotangent(key, tree):
     return jax.tree_util.tree_unflatten(
         treedef, [jax.random.normal(k, np.shape(x), np.asarray(x).dtype)
                   for k, x in zip(keys, leaves)])
+
+
+def near(mask):
+    """Pixels of (..., H, W) `mask` dilated by one pixel (8-neighbourhood)."""
+    padded = np.pad(mask, [(0, 0)] * (mask.ndim - 2) + [(1, 1), (1, 1)])
+    h, w = mask.shape[-2:]
+    return np.any([padded[..., 1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+                   for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)

@@ -6,16 +6,10 @@ import numpy as np
 import pytest
 
 from gae_jax import data, head
+from tests.helpers import near
 
 SMALL = dict(size=40, num_cameras=9, frames_per_sequence=6, progress=False)
 
-
-def near(mask):
-    """Pixels of (..., H, W) `mask` dilated by one pixel (8-neighbourhood)."""
-    padded = np.pad(mask, [(0, 0)] * (mask.ndim - 2) + [(1, 1), (1, 1)])
-    h, w = mask.shape[-2:]
-    return np.any([padded[..., 1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
-                   for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
 
 
 @pytest.fixture(scope="module")

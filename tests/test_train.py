@@ -11,16 +11,10 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from gae_jax import data, evaluate, head, train
 from gae_jax import reconstruct as rc
+from tests.helpers import near
 
 SIZE = 96
 
-
-def near(mask):
-    """(..., H, W) mask dilated by one pixel."""
-    padded = np.pad(mask, [(0, 0)] * (mask.ndim - 2) + [(1, 1), (1, 1)])
-    h, w = mask.shape[-2:]
-    return np.any([padded[..., 1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
-                   for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
 
 
 @pytest.fixture(scope="module")
