@@ -16,11 +16,17 @@ preserved group (`teeth`, `eyes` = sclera + iris + pupil, `rest` = everything el
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import json
+import os
+import sys
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-from gae_jax import data, head
+from gae_jax import data, head, losses
 
 PROTOCOLS = ("novel_view", "self_reenactment", "cross_identity")
 PRESERVED_GROUPS = {"teeth": ("teeth",), "eyes": ("sclera", "iris", "pupil"),
@@ -56,6 +62,19 @@ def protocol_frames(scene, name: str, frames: int = 6, cameras: int = 3) -> Prot
     return ProtocolFrames(name, [pairs[i] for i in pick], cams)
 
 
+def temporal_frames(scene, name: str) -> ProtocolFrames:
+    """A clip of consecutive frames at one camera for a protocol's flicker and CLIP-C: a whole
+    training sequence at the held-out camera (novel view), the held-out sequence at a training
+    camera (self-reenactment), identity B's sequence at the held-out camera (cross-identity)."""
+    if name not in PROTOCOLS:
+        raise ValueError(f"unknown protocol {name!r}; choose from {PROTOCOLS}")
+    seq = {"novel_view": data.TRAIN_SEQUENCES[0], "self_reenactment": data.HELD_OUT_SEQUENCE,
+           "cross_identity": data.CROSS_SEQUENCE}[name]
+    cam = scene.train_cameras[0] if name == "self_reenactment" else scene.held_out_cameras[0]
+    return ProtocolFrames(name, [(seq, t) for t in range(scene.sequences[seq].num_frames)],
+                          (cam,))
+
+
 def ideal_frames(scene, model, assets, vertex_albedo, protocol: ProtocolFrames):
     """Ray-cast truth of A (shape A) with the given albedo: images (P, K, H, W, 3) uint8 and
     regions (P, K, H, W), for P pairs x K cameras."""
@@ -87,21 +106,136 @@ def region_masks(regions: np.ndarray, edited_region: str | None) -> dict:
     return masks
 
 
-def region_psnr(predicted: np.ndarray, truth: np.ndarray, regions: np.ndarray,
-                edited_region: str | None) -> dict:
-    """PSNR (dB) per mask over (..., H, W, 3) images in [0, 1] or uint8; None if a mask is empty."""
-    p = _float(predicted)
-    t = _float(truth)
-    out = {}
-    for name, mask in region_masks(regions, edited_region).items():
-        if not mask.any():
-            out[name] = None
-            continue
-        mse = float(np.mean((p[mask] - t[mask]) ** 2))
-        out[name] = round(float(10 * np.log10(1.0 / max(mse, 1e-12))), 3)
+def region_scores(predicted: np.ndarray, truth: np.ndarray, regions: np.ndarray,
+                  edited_region: str | None, perceptual: bool = True) -> dict:
+    """{metric: {mask: value}} over (..., H, W, 3) images in [0, 1] or uint8.
+
+    `psnr` pools squared errors over the mask's pixels of all images; `ssim` and `lpips` average
+    the per-pixel SSIM map (11x11 window, on the whole image) and LPIPS map over the mask's
+    pixels. A mask with no pixels gets None. `perceptual=False` skips LPIPS.
+    """
+    p = _float(predicted).reshape((-1,) + np.shape(predicted)[-3:])
+    t = _float(truth).reshape(p.shape)
+    masks = {k: m.reshape(p.shape[:-1]) for k, m in region_masks(regions, edited_region).items()}
+    ssim = np.asarray(_ssim_maps(jnp.asarray(p, jnp.float32), jnp.asarray(t, jnp.float32)))
+    maps = {"ssim": ssim.mean(-1)}
+    if perceptual:
+        from gae_jax import lpips
+
+        maps["lpips"] = np.asarray(lpips.lpips_map(p, t))
+    out = {"psnr": {}, **{k: {} for k in maps}}
+    for name, mask in masks.items():
+        empty = not mask.any()
+        mse = float(np.mean((p[mask] - t[mask]) ** 2)) if not empty else None
+        out["psnr"][name] = None if empty else round(10 * np.log10(1.0 / max(mse, 1e-12)), 3)
+        for metric, m in maps.items():
+            out[metric][name] = None if empty else round(float(m[mask].mean()), 4)
     return out
+
+
+@jax.jit
+def _ssim_maps(a, b):
+    return jax.vmap(losses.ssim_map)(a, b)
+
+
+def region_psnr(predicted, truth, regions, edited_region: str | None) -> dict:
+    """PSNR (dB) per mask (see `region_scores`)."""
+    return region_scores(predicted, truth, regions, edited_region, perceptual=False)["psnr"]
+
+
+def flicker(ours: np.ndarray, truth: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Temporal flicker of (T, H, W, 3) consecutive frames: the mean absolute difference between
+    our frame-to-frame change and the truth's, (ours_t+1 - ours_t) - (truth_t+1 - truth_t), in
+    [0, 1] units over pixels (of an optional (T, H, W) mask, taken where either frame has it)."""
+    o, t = _float(ours), _float(truth)
+    if o.shape != t.shape or o.ndim != 4 or len(o) < 2:
+        raise ValueError(f"flicker needs two (T >= 2, H, W, 3) clips, got {o.shape}, {t.shape}")
+    diff = np.abs(np.diff(o, axis=0) - np.diff(t, axis=0)).mean(-1)
+    if mask is None:
+        return float(diff.mean())
+    m = mask[1:] | mask[:-1]
+    return float(diff[m].mean()) if m.any() else float("nan")
 
 
 def _float(x):
     x = np.asarray(x)
     return x.astype(np.float64) / 255.0 if x.dtype == np.uint8 else x.astype(np.float64)
+
+
+SUMMARY_COLUMNS = (("psnr", "whole"), ("psnr", "edited"), ("psnr", "teeth"), ("psnr", "eyes"),
+                   ("psnr", "rest"), ("ssim", "whole"), ("ssim", "edited"), ("lpips", "whole"),
+                   ("lpips", "edited"))
+
+
+def summary_table(results: dict) -> str:
+    """Markdown table of `train.evaluate_edit`'s results: a row per protocol and avatar."""
+    head_cells = [f"{m.upper()} {r}" for m, r in SUMMARY_COLUMNS] + ["flicker", "CLIP-S",
+                                                                      "CLIP-C"]
+    lines = ["| protocol | avatar | " + " | ".join(head_cells) + " |",
+             "|---" * (len(head_cells) + 2) + "|"]
+    for name in PROTOCOLS:
+        if name not in results:
+            continue
+        r = results[name]
+        for who in ("ours", "original_avatar"):
+            cells = [_cell(r[who].get(m, {}).get(k)) for m, k in SUMMARY_COLUMNS]
+            cells.append(_cell(r["flicker"][who]["whole"]))
+            cells += [_cell(r.get("clip_s")), _cell(r.get("clip_c"))] if who == "ours" else [
+                "", ""]
+            lines.append(f"| {name} | {who} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _cell(value) -> str:
+    if value is None:
+        return "-"
+    return f"{value:.4f}" if abs(value) < 1 else f"{value:.2f}"
+
+
+def main(argv=None) -> int:
+    """`python -m gae_jax.evaluate RUN_DIR`: re-scores a run folder written by
+    `python -m gae_jax.train`; writes RUN_DIR/evaluation.json and evaluation.md."""
+    p = argparse.ArgumentParser(prog="python -m gae_jax.evaluate", description=main.__doc__)
+    p.add_argument("run_dir", help="folder written by python -m gae_jax.train")
+    p.add_argument("--frames", type=int, default=4, help="frames per protocol")
+    p.add_argument("--clip-folder", default="", help="local CLIP folder for CLIP-S / CLIP-C")
+    args = p.parse_args(argv)
+    metrics_path = os.path.join(args.run_dir, "metrics.json")
+    avatar_path = os.path.join(args.run_dir, "edited_avatar", "point_cloud.ply")
+    for path in (metrics_path, avatar_path):
+        if not os.path.isfile(path):
+            print(f"error: {path} not found; is {args.run_dir!r} a run folder of "
+                  "python -m gae_jax.train?", file=sys.stderr)
+            return 2
+    if args.frames < 1:
+        print("error: --frames must be >= 1", file=sys.stderr)
+        return 2
+    if args.clip_folder and not os.path.isfile(os.path.join(args.clip_folder, "config.json")):
+        print(f"error: --clip-folder {args.clip_folder!r} is not a CLIP folder (no "
+              "config.json)", file=sys.stderr)
+        return 2
+    from gae_jax import train
+    from gae_jax.io import atomic_write_bytes
+
+    with open(metrics_path) as f:
+        saved = json.load(f)["config"]
+    fields = {f.name for f in dataclasses.fields(train.EditConfig)}
+    config = train.EditConfig(**{k: v for k, v in saved.items() if k in fields})
+    session = train.setup(config)
+    edited = train.load_avatar(avatar_path, session.assets)
+    if edited.num != session.original.num:
+        print(f"error: {avatar_path} has {edited.num} Gaussians, the run's original avatar "
+              f"{session.original.num}", file=sys.stderr)
+        return 2
+    results = train.evaluate_edit(session, edited, frames=args.frames,
+                                  clip_folder=args.clip_folder)
+    table = summary_table(results)
+    atomic_write_bytes(os.path.join(args.run_dir, "evaluation.json"),
+                       json.dumps(results, indent=1).encode())
+    atomic_write_bytes(os.path.join(args.run_dir, "evaluation.md"), (table + "\n").encode())
+    print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

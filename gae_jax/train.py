@@ -61,6 +61,7 @@ class EditConfig:
     editor: str = "semantic"
     editor_noise: float = 0.3
     ip2p_folder: str = ""
+    clip_folder: str = ""
     iterations: int = 100
     batch: int = 1
     blend: str = "wabe_grad"
@@ -294,10 +295,14 @@ def original_avatar(scene, assets, iterations: int, progress: bool) -> av.Avatar
                            progress=progress)
         os.makedirs(os.path.dirname(path), exist_ok=True)
         avatar_io.save_avatar_ply(fitted, path)
+    return load_avatar(path, assets)
+
+
+def load_avatar(path: str, assets) -> av.Avatar:
+    """A GaussianAvatars `point_cloud.ply` bound to the built-in head; degree-0 SH becomes plain
+    RGB (edited directly: an Adam step on the DC coefficient moves RGB by only C0 = 0.28 of it)."""
     loaded = avatar_io.load_avatar_ply(path, assets.face_regions)
     if loaded.colors.shape[1] == 1:
-        # Degree-0 SH is plain colour; edit RGB directly (an Adam step on the DC coefficient
-        # moves RGB by only C0 = 0.28 of it).
         loaded = dataclasses.replace(loaded, colors=sh.dc_to_rgb(loaded.colors[:, 0]))
     return loaded
 
@@ -532,23 +537,48 @@ def ideal_edit(session: Session):
                                               s.assets.face_regions, s.model.v_template)
 
 
-def evaluate_edit(session: Session, edited: av.Avatar, frames: int = 4) -> dict:
-    """Per-protocol, per-region PSNR of the edited avatar against the ideal edit."""
+def evaluate_edit(session: Session, edited: av.Avatar, frames: int = 4,
+                  clip_folder: str = "") -> dict:
+    """Per protocol: PSNR / SSIM / LPIPS per region of ours and of the untouched avatar against
+    the ideal edit, temporal flicker over a clip of consecutive frames, and CLIP-S / CLIP-C when
+    `clip_folder` holds a CLIP checkpoint."""
+    from gae_jax import clip_score
 
     s = session
     instruction, albedo = ideal_edit(s)
+    region = instruction.region if instruction else None
+    clip = clip_score.load_clip(clip_folder) if clip_folder else None
+    captions = clip_score.captions(s.config.prompt)
     results = {}
     for name in evaluate.PROTOCOLS:
         protocol = evaluate.protocol_frames(s.scene, name, frames=frames)
         truth, regions = evaluate.ideal_frames(s.scene, s.model, s.assets, albedo, protocol)
         verts = protocol_vertices(s, protocol)
         ours = render_avatar_frames(s, edited, verts, protocol.cameras)
-        scores = evaluate.region_psnr(ours, truth, regions,
-                                      instruction.region if instruction else None)
         original = render_avatar_frames(s, s.original, verts, protocol.cameras)
-        scores["original_avatar"] = evaluate.region_psnr(
-            original, truth, regions, instruction.region if instruction else None)
+        scores = dict(ours=evaluate.region_scores(ours, truth, regions, region),
+                      original_avatar=evaluate.region_scores(original, truth, regions, region))
+
+        clip_frames = evaluate.temporal_frames(s.scene, name)
+        clip_truth, clip_regions = evaluate.ideal_frames(s.scene, s.model, s.assets, albedo,
+                                                         clip_frames)
+        clip_verts = protocol_vertices(s, clip_frames)
+        clip_ours = render_avatar_frames(s, edited, clip_verts, clip_frames.cameras)[:, 0]
+        clip_original = render_avatar_frames(s, s.original, clip_verts, clip_frames.cameras)[:, 0]
+        masks = evaluate.region_masks(clip_regions[:, 0], region)
+        scores["flicker"] = {
+            who: {m: round(evaluate.flicker(clip, clip_truth[:, 0], masks[m]), 5)
+                  for m in ("whole", "edited") if m in masks}
+            for who, clip in (("ours", clip_ours), ("original_avatar", clip_original))}
+        if clip is not None:
+            scores["clip_s"] = round(clip_score.direction_similarity(
+                clip, original.reshape((-1,) + original.shape[-3:]),
+                ours.reshape((-1,) + ours.shape[-3:]), *captions), 4)
+            scores["clip_c"] = round(clip_score.direction_consistency(
+                clip, clip_original, clip_ours), 4)
         results[name] = scores
+    results["clip"] = (dict(source=captions[0], target=captions[1]) if clip is not None else
+                       "skipped: no CLIP folder given (--clip-folder)")
     if instruction is None:
         results["note"] = ("the instruction has no ideal 3D counterpart (style edit): scores "
                            "are against the unedited truth")
@@ -638,7 +668,7 @@ def run(config: EditConfig, out_dir: str, resume: bool = False, progress: bool =
     write_grid(session, edited, os.path.join(out_dir, "grid.png"), jax.random.PRNGKey(99))
     if video:
         write_video(session, edited, os.path.join(out_dir, "reenactment.mp4"))
-    scores = evaluate_edit(session, edited)
+    scores = evaluate_edit(session, edited, clip_folder=config.clip_folder)
     timings["outputs_and_evaluation_s"] = round(time.perf_counter() - t2, 1)
     timings["total_s"] = round(time.perf_counter() - t0, 1)
     metrics = dict(config=dataclasses.asdict(config), timings=timings, evaluation=scores,
@@ -656,6 +686,7 @@ HELP = {
     "editor": "2D editor: semantic (built in), style (OpenCV), ip2p (local InstructPix2Pix)",
     "editor_noise": "semantic editor's inconsistency across calls, 0..1",
     "ip2p_folder": "local diffusers InstructPix2Pix folder (editor ip2p)",
+    "clip_folder": "local CLIP folder for CLIP-S / CLIP-C in metrics.json (skipped if empty)",
     "iterations": "edit iterations",
     "batch": "(view, time) samples per iteration (sharded over devices)",
     "blend": "standard, wabe (paper: forward and backward) or wabe_grad (gradient only)",
@@ -724,12 +755,16 @@ def main(argv=None) -> int:
             style.parse(config.prompt)
         else:
             make_editor("ip2p", folder=config.ip2p_folder)
+        if config.clip_folder and not os.path.isfile(os.path.join(config.clip_folder,
+                                                                  "config.json")):
+            raise FileNotFoundError(f"--clip-folder {config.clip_folder!r} is not a CLIP "
+                                    "folder (no config.json)")
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     metrics = run(config, args.out, resume=args.resume, video=not args.no_video)
-    print(json.dumps(dict(out=args.out, timings=metrics["timings"],
-                          evaluation=metrics["evaluation"]), indent=1))
+    print(evaluate.summary_table(metrics["evaluation"]))
+    print(json.dumps(dict(out=args.out, timings=metrics["timings"]), indent=1))
     return 0
 
 
