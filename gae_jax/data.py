@@ -247,7 +247,7 @@ def _cache_key(params: dict) -> str:
 
 
 def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequence: int = 16,
-                         background: str = "white", supersample: int = 3,
+                         background: str = "white", supersample: int = 2,
                          cache_dir: str | None = None, progress: bool = True) -> Scene:
     """Builds (or loads from the cache) the default scene.
 
@@ -256,7 +256,8 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
       num_cameras: rig size (camera `HELD_OUT_CAMERA` is held out for novel views).
       frames_per_sequence: frames in each of the 7 sequences.
       background: "white" or "black".
-      supersample: ground-truth rays per pixel per axis (3: 9 rays, anti-aliased edges).
+      supersample: ground-truth rays per pixel per axis. 2 (4 rays) is 40.4 dB from a 6x6
+        reference at 128 px, 3 is 44.7 dB and takes twice the build time.
       cache_dir: where cached scenes live; `$GAE_JAX_CACHE` or ~/.cache/gae_jax when None.
     """
     if size < 8 or num_cameras < 2 or frames_per_sequence < 2 or supersample < 1:
@@ -302,6 +303,17 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
                  width=size, height=size, train_cameras=train, held_out_cameras=held_out,
                  shapes=shapes, vertex_colors=colours, sequences=sequences, images=images,
                  regions=regions, background=bg.astype(np.float32))
+
+
+def scene_fingerprint(scene: Scene) -> str:
+    """16 hex digits identifying a scene's cameras and ground truth (for caches built on it)."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(scene.intrinsics).tobytes())
+    h.update(np.ascontiguousarray(scene.w2c).tobytes())
+    for name in sorted(scene.images):
+        h.update(name.encode())
+        h.update(np.ascontiguousarray(scene.images[name]).tobytes())
+    return h.hexdigest()[:16]
 
 
 def _progress(total, desc, enabled):

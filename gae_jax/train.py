@@ -281,15 +281,15 @@ def frame_table(scene):
     return pairs, neighbours
 
 
-def _avatar_cache_path(scene_size: int, iterations: int) -> str:
+def _avatar_cache_path(scene, iterations: int) -> str:
     base = os.environ.get("GAE_JAX_CACHE") or os.path.join(os.path.expanduser("~"), ".cache",
                                                             "gae_jax")
-    return os.path.join(base, f"avatar-s{scene_size}-v{data.SCENE_VERSION}-it{iterations}.ply")
+    return os.path.join(base, f"avatar-{data.scene_fingerprint(scene)}-it{iterations}.ply")
 
 
 def original_avatar(scene, assets, iterations: int, progress: bool) -> av.Avatar:
     """The reconstructed avatar of identity A, from the cache or fitted now (then cached)."""
-    path = _avatar_cache_path(scene.width, iterations)
+    path = _avatar_cache_path(scene, iterations)
     if not os.path.isfile(path):
         fitted, _ = rc.fit(scene, rc.ReconstructConfig(iterations=iterations),
                            progress=progress)
@@ -538,21 +538,31 @@ def ideal_edit(session: Session):
 
 
 def evaluate_edit(session: Session, edited: av.Avatar, frames: int = 4,
-                  clip_folder: str = "") -> dict:
+                  clip_folder: str = "", truth_cache: Optional[dict] = None) -> dict:
     """Per protocol: PSNR / SSIM / LPIPS per region of ours and of the untouched avatar against
     the ideal edit, temporal flicker over a clip of consecutive frames, and CLIP-S / CLIP-C when
-    `clip_folder` holds a CLIP checkpoint."""
+    `clip_folder` holds a CLIP checkpoint. `truth_cache` (a dict) keeps the ray-cast ideal
+    frames across calls with the same instruction and scene."""
     from gae_jax import clip_score
 
     s = session
     instruction, albedo = ideal_edit(s)
+    cache = truth_cache if truth_cache is not None else {}
+
+    def truth_of(protocol):
+        key = (s.config.prompt, id(s.scene), protocol.name, tuple(protocol.pairs),
+               protocol.cameras)
+        if key not in cache:
+            cache[key] = evaluate.ideal_frames(s.scene, s.model, s.assets, albedo, protocol)
+        return cache[key]
+
     region = instruction.region if instruction else None
     clip = clip_score.load_clip(clip_folder) if clip_folder else None
     captions = clip_score.captions(s.config.prompt)
     results = {}
     for name in evaluate.PROTOCOLS:
         protocol = evaluate.protocol_frames(s.scene, name, frames=frames)
-        truth, regions = evaluate.ideal_frames(s.scene, s.model, s.assets, albedo, protocol)
+        truth, regions = truth_of(protocol)
         verts = protocol_vertices(s, protocol)
         ours = render_avatar_frames(s, edited, verts, protocol.cameras)
         original = render_avatar_frames(s, s.original, verts, protocol.cameras)
@@ -560,8 +570,7 @@ def evaluate_edit(session: Session, edited: av.Avatar, frames: int = 4,
                       original_avatar=evaluate.region_scores(original, truth, regions, region))
 
         clip_frames = evaluate.temporal_frames(s.scene, name)
-        clip_truth, clip_regions = evaluate.ideal_frames(s.scene, s.model, s.assets, albedo,
-                                                         clip_frames)
+        clip_truth, clip_regions = truth_of(clip_frames)
         clip_verts = protocol_vertices(s, clip_frames)
         clip_ours = render_avatar_frames(s, edited, clip_verts, clip_frames.cameras)[:, 0]
         clip_original = render_avatar_frames(s, s.original, clip_verts, clip_frames.cameras)[:, 0]
