@@ -1,0 +1,162 @@
+"""Speed against accuracy of the default edit: what costs time, what it buys.
+
+    python benchmarks/pareto.py [--out benchmarks/results/pareto]
+
+Sweeps, one knob at a time from the default (`fast`: 128 px, 100 iterations, every Gaussian of
+the reconstruction, tile capacity sized from the busiest tile):
+  * Gaussians: keep the most opaque 75 / 50 / 25 % of the reconstructed avatar;
+  * resolution: edit at 64 / 96 px (own scene and reconstruction), evaluated at 128 px;
+  * tile capacity: 0.5x / 0.75x of the busiest tile (overflowing tiles drop Gaussians);
+  * iterations: 25 / 50 / 200.
+Each variant's step is compiled before timing (`warmup_seconds`), so `edit_seconds` is the
+steady-state cost. Quality: PSNR of the edited region (lips) and of the region it must not touch
+(teeth), mean over the three protocols, against the ideal edit. Writes `<out>.json` and
+`<out>.png` (both qualities against edit time, Pareto fronts marked) and prints the front.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from editbench import Bench, mean_over_protocols  # noqa: E402
+
+from gae_jax import avatar as av  # noqa: E402
+from gae_jax import data, head, train  # noqa: E402
+
+VARIANTS = {
+    "default": {},
+    "gaussians_75": dict(keep=0.75), "gaussians_50": dict(keep=0.5),
+    "gaussians_25": dict(keep=0.25),
+    "size_64": dict(size=64), "size_96": dict(size=96),
+    "capacity_0.5": dict(capacity=0.5), "capacity_0.75": dict(capacity=0.75),
+    "iterations_25": dict(iterations=25), "iterations_50": dict(iterations=50),
+    "iterations_200": dict(iterations=200),
+}
+
+
+def keep_most_opaque(avatar: av.Avatar, fraction: float, num_faces: int) -> av.Avatar:
+    order = np.argsort(-np.asarray(avatar.opacity_logits))
+    remove = np.ones(avatar.num, bool)
+    remove[order[:int(round(fraction * avatar.num))]] = False
+    return av.prune(avatar, remove, num_faces, keep_every_face=False)
+
+
+def with_capacity(session: train.Session, capacity: int) -> train.Session:
+    d = dataclasses.replace(session.data, tile_capacity=capacity)
+    blend = train.blend_of(session.config)
+    canonical = av.deform(session.original, session.model.v_template, session.model.faces).means
+    return dataclasses.replace(session, data=d, step=train.make_edit_step(session.config, d),
+                               preview=train.make_preview(d, blend, canonical),
+                               render=train.make_renderer(d, blend))
+
+
+def run_variant(bench: Bench, name: str, knobs: dict, base: train.EditConfig, scene128):
+    if name in bench.results:
+        return bench.results[name]
+    model, assets = head.make_head()
+    config = dataclasses.replace(base, iterations=knobs.get("iterations", base.iterations))
+    size = knobs.get("size", 128)
+    scene = scene128 if size == 128 else data.make_synthetic_scene(size=size, progress=False)
+    original = train.original_avatar(scene, assets, base.reconstruct_iterations, progress=False)
+    if "keep" in knobs:
+        original = keep_most_opaque(original, knobs["keep"], model.faces.shape[0])
+    config = dataclasses.replace(config, size=size)
+    session, _ = bench.session(config, scene=scene, original=original)
+    auto_capacity = session.data.tile_capacity
+    if "capacity" in knobs:
+        capacity = max(32, int(round(knobs["capacity"] * session.data.tile_capacity)))
+        session = with_capacity(session, capacity)
+    warm = train.edit_avatar(dataclasses.replace(
+        session, config=dataclasses.replace(config, iterations=1)))  # compiles
+    del warm
+    start = time.perf_counter()
+    edited, history = train.edit_avatar(session)
+    seconds = time.perf_counter() - start
+    # score at 128 px whatever the edit's resolution: the avatar is 3D
+    judge = session if size == 128 else train.setup(dataclasses.replace(config, size=128),
+                                                    scene=scene128, original=original)
+    evaluation = train.evaluate_edit(judge, edited, truth_cache=bench.truth_cache)
+    record = dict(knobs=knobs, edit_seconds=round(seconds, 1), gaussians=int(edited.num),
+                  tile_capacity=session.data.tile_capacity, size=size,
+                  iterations=config.iterations,
+                  auto_tile_capacity=auto_capacity,
+                  evaluation=evaluation)
+    bench.results[name] = record
+    bench.save()
+    print(name, record["edit_seconds"], "s", flush=True)
+    return record
+
+
+def pareto_front(times, quality):
+    """Indices of points no other point beats in both (less time, more quality)."""
+    front = []
+    for i, (t, q) in enumerate(zip(times, quality)):
+        if not any((t2 <= t and q2 >= q) and (t2 < t or q2 > q)
+                   for j, (t2, q2) in enumerate(zip(times, quality)) if j != i):
+            front.append(i)
+    return sorted(front, key=lambda i: times[i])
+
+
+def plot(results: dict, path: str) -> dict:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(results)
+    times = [results[n]["edit_seconds"] for n in names]
+    fronts = {}
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, region, label in ((axes[0], "edited", "lips (edited) PSNR dB"),
+                              (axes[1], "teeth", "teeth (must not change) PSNR dB")):
+        q = [mean_over_protocols(results[n], "psnr", region) for n in names]
+        front = pareto_front(times, q)
+        fronts[region] = [names[i] for i in front]
+        ax.scatter(times, q, c=["tab:red" if n == "default" else "tab:blue" for n in names])
+        ax.plot([times[i] for i in front], [q[i] for i in front], "k--", lw=1,
+                label="Pareto front")
+        for n, t, v in zip(names, times, q):
+            ax.annotate(n, (t, v), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        ax.set_xlabel("edit wall time, s (compiled, 2-core CPU)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="lower right")
+    fig.suptitle("Speed against accuracy: 'turn the lips blue', mean over 3 protocols")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return fronts
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    p.add_argument("--out", default="benchmarks/results/pareto")
+    p.add_argument("--iterations", type=int, default=100, help="edit iterations of the default")
+    args = p.parse_args(argv)
+    os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
+    bench = Bench(args.out + ".json")
+    base = train.preset("fast", checkpoint_every=0, iterations=args.iterations)
+    scene128 = data.make_synthetic_scene(size=128, progress=False)
+    for name in args.variants:
+        run_variant(bench, name, VARIANTS[name], base, scene128)
+    fronts = plot(bench.results, args.out + ".png")
+    bench.save(fronts=fronts)
+    for name, r in bench.results.items():
+        print(f"{name:16s} {r['edit_seconds']:7.1f} s  lips "
+              f"{mean_over_protocols(r, 'psnr', 'edited')}  teeth "
+              f"{mean_over_protocols(r, 'psnr', 'teeth')}  whole "
+              f"{mean_over_protocols(r, 'psnr', 'whole')}")
+    print("Pareto fronts:", fronts)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
