@@ -60,6 +60,7 @@ class EditConfig:
     prompt: str = "turn the lips blue"
     editor: str = "semantic"
     editor_noise: float = 0.3
+    editor_keeps: str = "render"
     ip2p_folder: str = ""
     clip_folder: str = ""
     iterations: int = 100
@@ -85,7 +86,7 @@ class EditConfig:
     seed: int = 0
 
     def __post_init__(self):
-        choices = dict(editor=("semantic", "style", "ip2p"),
+        choices = dict(editor=("semantic", "style", "ip2p"), editor_keeps=("render", "original"),
                        blend=("standard", "wabe", "wabe_grad"), pair_mode=gan.PAIR_MODES,
                        gradient_mask=("none", "code"))
         for field, allowed in choices.items():
@@ -359,8 +360,8 @@ class Editing:
 
     def __init__(self, session: Session):
         c = session.config
-        options = dict(noise=c.editor_noise) if c.editor == "semantic" else (
-            dict(folder=c.ip2p_folder) if c.editor == "ip2p" else {})
+        options = {"semantic": dict(noise=c.editor_noise, keeps=c.editor_keeps),
+                   "ip2p": dict(folder=c.ip2p_folder)}.get(c.editor, {})
         self.session = session
         self.editor = make_editor(c.editor, **options)
         self.cache: dict = {}  # (cam, row) -> uint8 edit
@@ -694,6 +695,8 @@ HELP = {
     "prompt": "the edit instruction",
     "editor": "2D editor: semantic (built in), style (OpenCV), ip2p (local InstructPix2Pix)",
     "editor_noise": "semantic editor's inconsistency across calls, 0..1",
+    "editor_keeps": "what the semantic editor returns outside the edited region: render (the "
+                    "image it edits) or original (the unedited image it is conditioned on)",
     "ip2p_folder": "local diffusers InstructPix2Pix folder (editor ip2p)",
     "clip_folder": "local CLIP folder for CLIP-S / CLIP-C in metrics.json (skipped if empty)",
     "iterations": "edit iterations",

@@ -55,6 +55,22 @@ def test_semantic_edit_equals_the_closed_form_and_touches_only_the_region():
     np.testing.assert_array_equal(out[~lips], image[~lips])
 
 
+def test_keeps_original_returns_the_original_outside_the_region():
+    image, regions, _ = toy_render()
+    original = np.clip(image * 0.5 + 0.3, 0, 1)  # e.g. the render has drifted from the original
+    lips = regions == LIPS
+    ctx = dict(regions=regions)
+    key = jax.random.PRNGKey(0)
+    kept = make_editor("semantic", keeps="original").edit(image, original, "turn the lips blue",
+                                                          key, ctx)
+    echoed = make_editor("semantic").edit(image, original, "turn the lips blue", key, ctx)
+    np.testing.assert_array_equal(kept[~lips], original[~lips])
+    np.testing.assert_array_equal(echoed[~lips], image[~lips])
+    np.testing.assert_array_equal(kept[lips], echoed[lips])
+    with pytest.raises(ValueError, match="keeps must be one of"):
+        make_editor("semantic", keeps="both")
+
+
 def test_noise_is_driven_by_the_key_and_zero_noise_ignores_it():
     image, regions, _ = toy_render()
     ctx = dict(regions=regions)

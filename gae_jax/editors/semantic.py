@@ -12,6 +12,12 @@ measures shading, and a darker target colour darkens the next target, without en
 (labels rendered from the avatar's Gaussians, i.e. what is visible); stripes need
 `context["canonical"]` (head-space positions per pixel) so that they stick to the head.
 
+Outside the edited region the editor returns the render it edits (`keeps="render"`, the default:
+a diffusion editor's output follows its input) or the original image (`keeps="original"`: what
+image conditioning on the original pulls toward). With "render", anything the avatar does wrong
+outside the region -- a halo of recoloured Gaussians, drift -- comes back as its own target and
+is never corrected; see the README's ablation and stability findings.
+
 `noise` in [0, 1] imitates a diffusion editor's inconsistency, all drawn from the key: per-call
 colour jitter, a mask grown or shrunk by up to 2 px, a shift by up to 2 px, an occasional partial
 edit (a random half of the region, probability 0.25 noise), and a global tone change.
@@ -103,16 +109,22 @@ def ideal_albedo(instruction: Instruction, albedo: np.ndarray, faces, face_regio
     return albedo
 
 
+KEEPS = ("render", "original")
+
+
 @dataclasses.dataclass(frozen=True)
 class SemanticEditor:
     """See the module docstring. `albedo`: region -> base RGB used to recover the shading."""
 
     noise: float = 0.0
     albedo: dict = dataclasses.field(default_factory=lambda: dict(head.ALBEDO))
+    keeps: str = "render"  # outside the edit: "render" (the image edited) or "original"
 
     def __post_init__(self):
         if not 0.0 <= self.noise <= 1.0:
             raise ValueError(f"noise must be in [0, 1], got {self.noise}")
+        if self.keeps not in KEEPS:
+            raise ValueError(f"keeps must be one of {KEEPS}, got {self.keeps!r}")
 
     def edit(self, render, original, prompt: str, key, context: dict | None = None):
         instruction = parse(prompt)
@@ -141,7 +153,8 @@ class SemanticEditor:
             mask = _jitter_mask(mask, self.noise, keys[1:6])
         base = np.asarray(self.albedo[instruction.region], np.float32)
         shade = (source @ LUMA) / max(float(base @ LUMA), 1e-3)
-        edited = np.where(mask[..., None], np.clip(colour, 0, 1) * shade[..., None], image)
+        outside = image if self.keeps == "render" else source
+        edited = np.where(mask[..., None], np.clip(colour, 0, 1) * shade[..., None], outside)
         if self.noise > 0:
             edited = edited * (1 + 0.04 * self.noise * float(jax.random.normal(keys[6])))
         return np.clip(edited, 0, 1).astype(np.float32)
