@@ -67,10 +67,15 @@ def _third_party_numerics():
         yield
 
 
-def load_clip(folder: str) -> Clip:
-    """Loads a local CLIP folder; clear errors when it or transformers is missing."""
+def check_folder(folder: str) -> None:
+    """FileNotFoundError unless `folder` looks like a CLIP checkpoint (has config.json)."""
     if not os.path.isfile(os.path.join(folder, "config.json")):
         raise FileNotFoundError(f"{folder!r} is not a CLIP folder (no config.json)")
+
+
+def load_clip(folder: str) -> Clip:
+    """Loads a local CLIP folder; clear errors when it or transformers is missing."""
+    check_folder(folder)
     try:
         import transformers
     except ImportError as e:

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gae_jax import data, head, losses
+from gae_jax import clip_score, data, head, losses
 
 PROTOCOLS = ("novel_view", "self_reenactment", "cross_identity")
 PRESERVED_GROUPS = {"teeth": ("teeth",), "eyes": ("sclera", "iris", "pupil"),
@@ -210,10 +210,12 @@ def main(argv=None) -> int:
     if args.frames < 1:
         print("error: --frames must be >= 1", file=sys.stderr)
         return 2
-    if args.clip_folder and not os.path.isfile(os.path.join(args.clip_folder, "config.json")):
-        print(f"error: --clip-folder {args.clip_folder!r} is not a CLIP folder (no "
-              "config.json)", file=sys.stderr)
-        return 2
+    if args.clip_folder:
+        try:
+            clip_score.check_folder(args.clip_folder)
+        except FileNotFoundError as e:
+            print(f"error: --clip-folder: {e}", file=sys.stderr)
+            return 2
     from gae_jax import train
     from gae_jax.io import atomic_write_bytes
 

@@ -767,10 +767,10 @@ def main(argv=None) -> int:
             style.parse(config.prompt)
         else:
             make_editor("ip2p", folder=config.ip2p_folder)
-        if config.clip_folder and not os.path.isfile(os.path.join(config.clip_folder,
-                                                                  "config.json")):
-            raise FileNotFoundError(f"--clip-folder {config.clip_folder!r} is not a CLIP "
-                                    "folder (no config.json)")
+        if config.clip_folder:
+            from gae_jax import clip_score
+
+            clip_score.check_folder(config.clip_folder)
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
