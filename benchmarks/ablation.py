@@ -28,7 +28,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from editbench import Bench, mean_over_protocols, score  # noqa: E402
 
-from gae_jax import data, evaluate, train  # noqa: E402
+from gae_jax.scene import synthetic
+from gae_jax import evaluate, train  # noqa: E402
 from gae_jax import reconstruct as rc  # noqa: E402
 
 ROWS = ("in2n", "no_wabe", "no_adv", "paper", "code", "wabe_grad")
@@ -134,7 +135,7 @@ def main(argv=None) -> int:
                                    editor_noise=noise, checkpoint_every=0)
             bench.run(variant_name(row, edit), config, extra=dict(row=row, edit=edit))
     if args.pass_edits:
-        scene = data.make_synthetic_scene(size=128, progress=False)
+        scene = synthetic.make_synthetic_scene(size=128, progress=False)
         images = len(scene.train_cameras) * len(rc.training_frames(scene))
         for edit, prompt, editor, noise in EDITS:
             if edit in args.pass_edits:

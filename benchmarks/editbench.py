@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from gae_jax import train
-from gae_jax.io import atomic_write_bytes
+from gae_jax.util.fileio import atomic_write_bytes
 
 # Fields the jitted step, preview and renderer do not read.
 HOST_ONLY = ("prompt", "editor", "editor_noise", "ip2p_folder", "clip_folder", "seed",

@@ -28,8 +28,10 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from editbench import Bench, mean_over_protocols  # noqa: E402
 
-from gae_jax import avatar as av  # noqa: E402
-from gae_jax import data, head, train  # noqa: E402
+from gae_jax.model import avatar as av  # noqa: E402
+from gae_jax.scene import synthetic
+from gae_jax.model import head
+from gae_jax import train  # noqa: E402
 
 VARIANTS = {
     "default": {},
@@ -64,7 +66,7 @@ def run_variant(bench: Bench, name: str, knobs: dict, base: train.EditConfig, sc
     model, assets = head.make_head()
     config = dataclasses.replace(base, iterations=knobs.get("iterations", base.iterations))
     size = knobs.get("size", 128)
-    scene = scene128 if size == 128 else data.make_synthetic_scene(size=size, progress=False)
+    scene = scene128 if size == 128 else synthetic.make_synthetic_scene(size=size, progress=False)
     original = train.original_avatar(scene, assets, base.reconstruct_iterations, progress=False)
     if "keep" in knobs:
         original = keep_most_opaque(original, knobs["keep"], model.faces.shape[0])
@@ -144,7 +146,7 @@ def main(argv=None) -> int:
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     bench = Bench(args.out + ".json")
     base = train.preset("fast", checkpoint_every=0, iterations=args.iterations)
-    scene128 = data.make_synthetic_scene(size=128, progress=False)
+    scene128 = synthetic.make_synthetic_scene(size=128, progress=False)
     for name in args.variants:
         run_variant(bench, name, VARIANTS[name], base, scene128)
     fronts = plot(bench.results, args.out + ".png")

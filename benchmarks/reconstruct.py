@@ -34,12 +34,12 @@ VARIANTS = {
 
 
 def run_variant(name: str) -> dict:
-    from gae_jax import data
+    from gae_jax.scene import synthetic
     from gae_jax import reconstruct as rc
 
     options = dict(VARIANTS[name])
     size = options.pop("size", 128)
-    scene = data.make_synthetic_scene(size=size, progress=False)
+    scene = synthetic.make_synthetic_scene(size=size, progress=False)
     config = rc.ReconstructConfig(**options)
     start = time.perf_counter()
     avatar, history = rc.fit(scene, config)
@@ -104,7 +104,7 @@ def main():
         print(json.dumps(result), flush=True)
         results.append(result)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-    from gae_jax.io import atomic_write_bytes
+    from gae_jax.util.fileio import atomic_write_bytes
 
     atomic_write_bytes(args.out + ".json", json.dumps(results, indent=1).encode())
     chart([r for r in results if "error" not in r], args.out + ".png")

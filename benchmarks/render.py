@@ -30,11 +30,11 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
     import jax.numpy as jnp
     import numpy as np
 
-    from gae_jax import splat, wabe
-    from gae_jax.compile import compiler_options
+    from gae_jax.render import splat, wabe
+    from gae_jax.util.compile import compiler_options
     from gae_jax.demo import random_frustum_scene
-    from gae_jax.projection import project
-    from gae_jax.tiles import bin_gaussians
+    from gae_jax.render.projection import project
+    from gae_jax.render.tiles import bin_gaussians
 
     blend = {"standard": wabe.standard(), "wabe": wabe.wabe(), "wabe_grad": wabe.wabe_grad()}[
         blend_name]
@@ -97,7 +97,7 @@ def main(argv=None):
     parser.add_argument("--unroll", type=int, default=8)
     parser.add_argument("--options", nargs="+", default=["fast", "default"],
                         choices=["fast", "default"],
-                        help="fast: gae_jax.compile.compiler_options(); default: plain jax.jit. "
+                        help="fast: gae_jax.util.compile.compiler_options(); default: plain jax.jit. "
                              "Both run, interleaved per configuration, by default.")
     parser.add_argument("--one", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)

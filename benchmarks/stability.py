@@ -29,9 +29,12 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from editbench import Bench, mean_over_protocols  # noqa: E402
 
-from gae_jax import avatar as av  # noqa: E402
-from gae_jax import avatar_io, data, evaluate, head, splat, train  # noqa: E402
-from gae_jax.camera import look_at_w2c, make_camera  # noqa: E402
+from gae_jax.model import avatar as av  # noqa: E402
+from gae_jax.model import avatar_io, head
+from gae_jax.scene import synthetic
+from gae_jax import evaluate, train  # noqa: E402
+from gae_jax.render import splat
+from gae_jax.render.camera import look_at_w2c, make_camera  # noqa: E402
 
 SWEEPS = {
     "beta": [(f"wabe_grad_beta_{b:g}", dict(blend="wabe_grad", beta=b), b)
@@ -62,14 +65,14 @@ def stress_scene(scene, model):
         jaw[i, 0], rotation[i, 1] = j, yaw
         expr[i, e["blink_left"]] = expr[i, e["blink_right"]] = blink
         eyes[i, 1] = eyes[i, 4] = gaze
-    seq = data.Sequence("stress", "A", "stress", expr, rotation, np.zeros((n, 3)), jaw, eyes,
+    seq = synthetic.Sequence("stress", "A", "stress", expr, rotation, np.zeros((n, 3)), jaw, eyes,
                         np.zeros((n, 3)))
     intr, w2c = [], []
     for _, yaw, pitch in EXTREME_CAMERAS:
         y, p = np.deg2rad(yaw), np.deg2rad(pitch)
-        eye = data.LOOK_AT + 0.6 * np.array([np.sin(y) * np.cos(p), np.sin(p),
+        eye = synthetic.LOOK_AT + 0.6 * np.array([np.sin(y) * np.cos(p), np.sin(p),
                                              np.cos(y) * np.cos(p)])
-        cam = make_camera(look_at_w2c(eye, data.LOOK_AT, up=(0, 1, 0)), scene.width, scene.height,
+        cam = make_camera(look_at_w2c(eye, synthetic.LOOK_AT, up=(0, 1, 0)), scene.width, scene.height,
                           fov_degrees=26.0)
         intr.append(np.asarray(cam.intrinsics))
         w2c.append(np.asarray(cam.w2c))
@@ -177,7 +180,7 @@ def main(argv=None) -> int:
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     bench = Bench(args.out + ".json")
     base = train.preset("fast", checkpoint_every=0, iterations=args.iterations)
-    scene = data.make_synthetic_scene(size=base.size, progress=False)
+    scene = synthetic.make_synthetic_scene(size=base.size, progress=False)
     _, assets = head.make_head()
     original = train.original_avatar(scene, assets, base.reconstruct_iterations, progress=False)
     default_ply = args.out + "-default-edit.ply"

@@ -19,10 +19,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gae_jax import avatar, flame, head, splat, wabe
-from gae_jax.camera import look_at_w2c, make_camera
-from gae_jax.compile import fast_jit
-from gae_jax.io import atomic_write_bytes, encode_png
+from gae_jax.model import avatar, flame, head
+from gae_jax.render import splat, wabe
+from gae_jax.render.camera import look_at_w2c, make_camera
+from gae_jax.util.compile import fast_jit
+from gae_jax.util.fileio import atomic_write_bytes, encode_png
 
 
 def random_frustum_scene(num: int, width: int, height: int, seed: int = 0,

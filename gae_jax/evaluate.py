@@ -26,7 +26,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gae_jax import clip_score, data, head, losses
+from gae_jax.evaluation import clip_score
+from gae_jax.scene import synthetic
+from gae_jax.model import head
+from gae_jax.render import losses
 
 PROTOCOLS = ("novel_view", "self_reenactment", "cross_identity")
 PRESERVED_GROUPS = {"teeth": ("teeth",), "eyes": ("sclera", "iris", "pupil"),
@@ -50,7 +53,7 @@ def protocol_frames(scene, name: str, frames: int = 6, cameras: int = 3) -> Prot
         pairs = training_frames(scene)
         cams = tuple(scene.held_out_cameras)
     elif name in ("self_reenactment", "cross_identity"):
-        seq = data.HELD_OUT_SEQUENCE if name == "self_reenactment" else data.CROSS_SEQUENCE
+        seq = synthetic.HELD_OUT_SEQUENCE if name == "self_reenactment" else synthetic.CROSS_SEQUENCE
         pairs = [(seq, t) for t in range(scene.sequences[seq].num_frames)]
         train = scene.train_cameras
         cams = tuple(train[i] for i in np.linspace(0, len(train) - 1, cameras).round().astype(int))
@@ -68,8 +71,8 @@ def temporal_frames(scene, name: str) -> ProtocolFrames:
     camera (self-reenactment), identity B's sequence at the held-out camera (cross-identity)."""
     if name not in PROTOCOLS:
         raise ValueError(f"unknown protocol {name!r}; choose from {PROTOCOLS}")
-    seq = {"novel_view": data.TRAIN_SEQUENCES[0], "self_reenactment": data.HELD_OUT_SEQUENCE,
-           "cross_identity": data.CROSS_SEQUENCE}[name]
+    seq = {"novel_view": synthetic.TRAIN_SEQUENCES[0], "self_reenactment": synthetic.HELD_OUT_SEQUENCE,
+           "cross_identity": synthetic.CROSS_SEQUENCE}[name]
     cam = scene.train_cameras[0] if name == "self_reenactment" else scene.held_out_cameras[0]
     return ProtocolFrames(name, [(seq, t) for t in range(scene.sequences[seq].num_frames)],
                           (cam,))
@@ -78,12 +81,12 @@ def temporal_frames(scene, name: str) -> ProtocolFrames:
 def ideal_frames(scene, model, assets, vertex_albedo, protocol: ProtocolFrames):
     """Ray-cast truth of A (shape A) with the given albedo: images (P, K, H, W, 3) uint8 and
     regions (P, K, H, W), for P pairs x K cameras."""
-    colours = data.shaded_colors(model, vertex_albedo, scene.shapes["A"])
+    colours = synthetic.shaded_colors(model, vertex_albedo, scene.shapes["A"])
     intr = scene.intrinsics[list(protocol.cameras)]
     w2c = scene.w2c[list(protocol.cameras)]
     images, regions = [], []
     for name, t in protocol.pairs:
-        img, reg = data.render_frame(model, assets.face_regions, colours, scene.shapes["A"],
+        img, reg = synthetic.render_frame(model, assets.face_regions, colours, scene.shapes["A"],
                                      scene.sequences[name], t, intr, w2c, scene.width,
                                      scene.background, supersample=3)
         images.append(img)
@@ -120,7 +123,7 @@ def region_scores(predicted: np.ndarray, truth: np.ndarray, regions: np.ndarray,
     ssim = np.asarray(_ssim_maps(jnp.asarray(p, jnp.float32), jnp.asarray(t, jnp.float32)))
     maps = {"ssim": ssim.mean(-1)}
     if perceptual:
-        from gae_jax import lpips
+        from gae_jax.evaluation import lpips
 
         maps["lpips"] = np.asarray(lpips.lpips_map(p, t))
     out = {"psnr": {}, **{k: {} for k in maps}}
@@ -217,7 +220,7 @@ def main(argv=None) -> int:
             print(f"error: --clip-folder: {e}", file=sys.stderr)
             return 2
     from gae_jax import train
-    from gae_jax.io import atomic_write_bytes
+    from gae_jax.util.fileio import atomic_write_bytes
 
     with open(metrics_path) as f:
         saved = json.load(f)["config"]

@@ -39,11 +39,12 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from gae_jax import avatar as av
-from gae_jax import flame, head, losses, splat
-from gae_jax.camera import Camera
-from gae_jax.compile import fast_jit
-from gae_jax.io import atomic_write_bytes
+from gae_jax.model import avatar as av
+from gae_jax.model import flame, head
+from gae_jax.render import losses, splat
+from gae_jax.render.camera import Camera
+from gae_jax.util.compile import fast_jit
+from gae_jax.util.fileio import atomic_write_bytes
 
 TRAINABLE = ("means", "quats", "log_scales", "opacity_logits", "colors")
 CHECKPOINT_NAME = "reconstruct_checkpoint.npz"

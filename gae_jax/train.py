@@ -40,13 +40,17 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from gae_jax import avatar as av
-from gae_jax import avatar_io, data, evaluate, gan, head, losses, sh, splat, wabe
+from gae_jax.model import avatar as av
+from gae_jax.model import avatar_io, head
+from gae_jax.scene import synthetic
+from gae_jax import evaluate
+from gae_jax.edit import gan
+from gae_jax.render import losses, sh, splat, wabe
 from gae_jax import reconstruct as rc
-from gae_jax.camera import Camera
-from gae_jax.compile import fast_jit
-from gae_jax.editors import make_editor
-from gae_jax.io import atomic_write_bytes, encode_png
+from gae_jax.render.camera import Camera
+from gae_jax.util.compile import fast_jit
+from gae_jax.edit.editors import make_editor
+from gae_jax.util.fileio import atomic_write_bytes, encode_png
 
 TRAINABLE = rc.TRAINABLE
 MOUTH_REGIONS = ("teeth", "mouth")  # excluded from the released code's gradient mask
@@ -285,7 +289,7 @@ def frame_table(scene):
 def _avatar_cache_path(scene, iterations: int) -> str:
     base = os.environ.get("GAE_JAX_CACHE") or os.path.join(os.path.expanduser("~"), ".cache",
                                                             "gae_jax")
-    return os.path.join(base, f"avatar-{data.scene_fingerprint(scene)}-it{iterations}.ply")
+    return os.path.join(base, f"avatar-{synthetic.scene_fingerprint(scene)}-it{iterations}.ply")
 
 
 def original_avatar(scene, assets, iterations: int, progress: bool) -> av.Avatar:
@@ -327,7 +331,7 @@ class Session:
 
 def setup(config: EditConfig, progress: bool = False, scene=None, original=None) -> Session:
     """Builds (or loads) the scene and original avatar, and the jitted step and preview."""
-    scene = scene or data.make_synthetic_scene(size=config.size, progress=progress)
+    scene = scene or synthetic.make_synthetic_scene(size=config.size, progress=progress)
     model, assets = head.make_head()
     original = original or original_avatar(scene, assets, config.reconstruct_iterations,
                                            progress)
@@ -527,7 +531,7 @@ def protocol_vertices(session: Session, protocol) -> np.ndarray:
 def ideal_edit(session: Session):
     """(instruction or None, (V, 3) vertex albedo of the ideal edit). Instructions outside the
     semantic vocabulary (styles) have no ideal: None and the unedited albedo."""
-    from gae_jax.editors import semantic
+    from gae_jax.edit.editors import semantic
 
     s = session
     try:
@@ -544,7 +548,7 @@ def evaluate_edit(session: Session, edited: av.Avatar, frames: int = 4,
     the ideal edit, temporal flicker over a clip of consecutive frames, and CLIP-S / CLIP-C when
     `clip_folder` holds a CLIP checkpoint. `truth_cache` (a dict) keeps the ray-cast ideal
     frames across calls with the same instruction and scene."""
-    from gae_jax import clip_score
+    from gae_jax.evaluation import clip_score
 
     s = session
     instruction, albedo = ideal_edit(s)
@@ -631,7 +635,7 @@ def write_video(session: Session, edited: av.Avatar, path: str, fps: int = 8) ->
     s = session
     cam = s.scene.held_out_cameras[0]
     frames = []
-    for seq in (data.HELD_OUT_SEQUENCE, data.CROSS_SEQUENCE):
+    for seq in (synthetic.HELD_OUT_SEQUENCE, synthetic.CROSS_SEQUENCE):
         pairs = [(seq, t) for t in range(s.scene.sequences[seq].num_frames)]
         verts = rc.posed_vertices(s.model, s.scene, pairs, identity="A")
         ours = render_avatar_frames(s, edited, verts, [cam])[:, 0]
@@ -652,12 +656,12 @@ def write_avatar_files(session: Session, edited: av.Avatar, out_dir: str) -> Non
     folder = os.path.join(out_dir, "edited_avatar")
     os.makedirs(folder, exist_ok=True)
     avatar_io.save_avatar_ply(edited, os.path.join(folder, "point_cloud.ply"))
-    seq = s.scene.sequences[data.HELD_OUT_SEQUENCE]
+    seq = s.scene.sequences[synthetic.HELD_OUT_SEQUENCE]
     params = [seq.params(s.scene.shapes["A"], t) for t in range(seq.num_frames)]
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *params)
     avatar_io.save_flame_params(os.path.join(folder, "flame_param.npz"), s.scene.shapes["A"],
                                 stacked)
-    verts = rc.posed_vertices(s.model, s.scene, [(data.HELD_OUT_SEQUENCE, 0)])[0]
+    verts = rc.posed_vertices(s.model, s.scene, [(synthetic.HELD_OUT_SEQUENCE, 0)])[0]
     avatar_io.save_posed_ply(av.deform(edited, jnp.asarray(verts), s.model.faces),
                              os.path.join(out_dir, "edited_posed.ply"))
 
@@ -758,17 +762,17 @@ def main(argv=None) -> int:
     try:
         config = preset(args.preset, **overrides)
         if config.editor == "semantic":
-            from gae_jax.editors import semantic
+            from gae_jax.edit.editors import semantic
 
             semantic.parse(config.prompt)
         elif config.editor == "style":
-            from gae_jax.editors import style
+            from gae_jax.edit.editors import style
 
             style.parse(config.prompt)
         else:
             make_editor("ip2p", folder=config.ip2p_folder)
         if config.clip_folder:
-            from gae_jax import clip_score
+            from gae_jax.evaluation import clip_score
 
             clip_score.check_folder(config.clip_folder)
     except (ValueError, FileNotFoundError) as e:

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from gae_jax import avatar as av
-from gae_jax.projection import quat_to_rotmat
+from gae_jax.model import avatar as av
+from gae_jax.render.projection import quat_to_rotmat
 
 
 def random_mesh(seed=0, v=30, f=20):

@@ -5,10 +5,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gae_jax import avatar as av
-from gae_jax import avatar_io, flame, head, splat
-from gae_jax.camera import look_at_w2c, make_camera
-from gae_jax.io import PlyError, read_ply
+from gae_jax.model import avatar as av
+from gae_jax.model import avatar_io, flame, head
+from gae_jax.render import splat
+from gae_jax.render.camera import look_at_w2c, make_camera
+from gae_jax.util.fileio import PlyError, read_ply
 
 
 @pytest.fixture(scope="module")

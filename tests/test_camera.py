@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gae_jax.camera import focal_from_fov, look_at_w2c, make_camera
+from gae_jax.render.camera import focal_from_fov, look_at_w2c, make_camera
 
 
 def test_look_at_puts_target_on_the_optical_axis_with_up_upwards(x64):

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gae_jax import clip_score
+from gae_jax.evaluation import clip_score
 
 
 def tiny_clip_folder(folder):

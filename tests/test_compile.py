@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gae_jax import compile as gcompile
+from gae_jax.util import compile as gcompile
 from gae_jax.demo import main as demo_main
 
 

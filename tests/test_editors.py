@@ -7,9 +7,10 @@ import jax
 import numpy as np
 import pytest
 
-from gae_jax import data, head
-from gae_jax.editors import make_editor, semantic, style
-from gae_jax.raycast import raycast
+from gae_jax.scene import synthetic
+from gae_jax.model import head
+from gae_jax.edit.editors import make_editor, semantic, style
+from gae_jax.scene.raycast import raycast
 
 LIPS = head.REGION_ID["lips"]
 
@@ -94,17 +95,17 @@ def test_noise_is_driven_by_the_key_and_zero_noise_ignores_it():
 def test_semantic_edit_of_the_truth_matches_the_ray_cast_ideal_edit():
     model, assets = head.make_head()
     scene_shape = np.zeros(model.num_shape)
-    intrinsics, w2c = data.camera_rig(9, 64)
-    camera = data.Camera(intrinsics=intrinsics[data.HELD_OUT_CAMERA],
-                         w2c=w2c[data.HELD_OUT_CAMERA], width=64, height=64)
+    intrinsics, w2c = synthetic.camera_rig(9, 64)
+    camera = synthetic.Camera(intrinsics=intrinsics[synthetic.HELD_OUT_CAMERA],
+                         w2c=w2c[synthetic.HELD_OUT_CAMERA], width=64, height=64)
     verts = np.asarray(model.v_template)
     faces = np.asarray(model.faces)
-    shaded = data.shaded_colors(model, assets.vertex_colors, scene_shape)
+    shaded = synthetic.shaded_colors(model, assets.vertex_colors, scene_shape)
     truth = raycast(verts, faces, shaded, assets.face_regions, camera)
     instruction = semantic.parse("turn the lips blue")
     albedo = semantic.ideal_albedo(instruction, assets.vertex_colors, faces, assets.face_regions,
                                    verts)
-    ideal = raycast(verts, faces, data.shaded_colors(model, albedo, scene_shape),
+    ideal = raycast(verts, faces, synthetic.shaded_colors(model, albedo, scene_shape),
                     assets.face_regions, camera)
     edit = make_editor("semantic").edit(truth.image, truth.image, "turn the lips blue",
                                         jax.random.PRNGKey(0), dict(regions=truth.regions))

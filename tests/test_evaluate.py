@@ -4,7 +4,10 @@ closed form, the protocols' clips consecutive."""
 import numpy as np
 import pytest
 
-from gae_jax import data, evaluate, head, lpips
+from gae_jax.scene import synthetic
+from gae_jax import evaluate
+from gae_jax.model import head
+from gae_jax.evaluation import lpips
 from tests.test_losses import naive_ssim
 
 
@@ -49,7 +52,7 @@ def test_flicker_closed_form():
 
 
 def test_temporal_clips_are_consecutive_frames_at_one_camera(tmp_path):
-    scene = data.make_synthetic_scene(size=16, num_cameras=4, frames_per_sequence=3,
+    scene = synthetic.make_synthetic_scene(size=16, num_cameras=4, frames_per_sequence=3,
                                       supersample=1, progress=False, cache_dir=str(tmp_path))
     for name in evaluate.PROTOCOLS:
         clip = evaluate.temporal_frames(scene, name)

@@ -12,7 +12,7 @@ import pytest
 import scipy.sparse
 from jax.test_util import check_grads
 
-from gae_jax import flame
+from gae_jax.model import flame
 
 # float64 JAX vs float64 numpy, same formulas: only summation order differs.
 LBS_TOLERANCE = 1e-10

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from gae_jax import gan
+from gae_jax.edit import gan
 
 
 def numpy_conv(x, kernel, bias, stride):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from gae_jax import flame, head
+from gae_jax.model import flame, head
 
 FRONTAL_EYES = [np.array(e) for e in ([0, 0, 0.5], [0.17, 0.0, 0.47], [-0.17, 0.0, 0.47],
                                       [0.0, 0.09, 0.49], [0.0, -0.08, 0.49])]

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.test_util import check_grads
 
-from gae_jax import losses
+from gae_jax.render import losses
 
 
 def naive_ssim(a, b):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from gae_jax import lpips
+from gae_jax.evaluation import lpips
 
 
 def images(seed, shape=(2, 64, 48, 3)):

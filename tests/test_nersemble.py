@@ -6,12 +6,12 @@ import os
 import numpy as np
 import pytest
 
-from gae_jax import data, nersemble
+from gae_jax.scene import nersemble, synthetic
 
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
-    scene = data.make_synthetic_scene(size=24, num_cameras=9, frames_per_sequence=3,
+    scene = synthetic.make_synthetic_scene(size=24, num_cameras=9, frames_per_sequence=3,
                                       cache_dir=str(tmp_path_factory.mktemp("cache")),
                                       progress=False)
     folder = str(tmp_path_factory.mktemp("subject"))
@@ -21,7 +21,7 @@ def exported(tmp_path_factory):
 
 def test_splits_have_the_expected_sizes(exported):
     scene, folder, counts = exported
-    train_frames = 3 * len(data.TRAIN_SEQUENCES)
+    train_frames = 3 * len(synthetic.TRAIN_SEQUENCES)
     assert counts == dict(train=train_frames * 8, val=train_frames, test=3 * 8)
     for split in ("train", "val", "test"):
         assert os.path.isfile(os.path.join(folder, f"transforms_{split}.json"))

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from gae_jax.camera import make_camera
-from gae_jax.raycast import raycast
+from gae_jax.render.camera import make_camera
+from gae_jax.scene.raycast import raycast
 
 # trimesh/embree intersect in float32 internally.
 EMBREE_TOLERANCE = 1e-4
@@ -79,7 +79,7 @@ def test_supersampled_edge_pixel_is_the_covered_fraction():
 
 
 def test_threaded_views_equal_one_at_a_time():
-    from gae_jax.raycast import raycast_views
+    from gae_jax.scene.raycast import raycast_views
 
     verts, faces, colors, regions = two_triangles()
     cameras = [make_camera(np.eye(4), 24, 16, fov_degrees=f) for f in (40.0, 55.0, 70.0)]

@@ -6,12 +6,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gae_jax import data, reconstruct, splat
+from gae_jax.scene import synthetic
+from gae_jax import reconstruct
+from gae_jax.render import splat
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    return data.make_synthetic_scene(size=32, num_cameras=9, frames_per_sequence=2,
+    return synthetic.make_synthetic_scene(size=32, num_cameras=9, frames_per_sequence=2,
                                      cache_dir=str(tmp_path_factory.mktemp("c")), progress=False)
 
 
@@ -56,7 +58,7 @@ def test_resume_after_a_crash_equals_the_uninterrupted_run(scene, tmp_path):
 
 
 def test_densify_and_prune_carry_adam_moments_with_each_gaussian(scene):
-    from gae_jax import head
+    from gae_jax.model import head
 
     model, assets = head.make_head()
     config = reconstruct.ReconstructConfig(grad_threshold=0.5)  # prune_unseen: faces may empty
@@ -96,8 +98,8 @@ def test_sh_mask_keeps_bands_up_to_the_degree():
 
 
 def test_capacity_from_tile_load_leaves_no_tile_overflowing(scene):
-    from gae_jax import avatar as av
-    from gae_jax import head
+    from gae_jax.model import avatar as av
+    from gae_jax.model import head
 
     model, assets = head.make_head()
     config = reconstruct.ReconstructConfig()

@@ -7,8 +7,8 @@ import pytest
 import scipy.special
 from jax.test_util import check_grads
 
-from gae_jax import sh, splat
-from gae_jax.camera import look_at_w2c, make_camera
+from gae_jax.render import sh, splat
+from gae_jax.render.camera import look_at_w2c, make_camera
 from tests import bruteforce
 
 # Quadrature on a (theta, phi) product grid integrates degree <= 6 polynomials on the sphere

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from gae_jax import composite as comp
-from gae_jax import splat, wabe
-from gae_jax.camera import look_at_w2c, make_camera
-from gae_jax.projection import project
-from gae_jax.tiles import (EXTENT_ABSOLUTE_MARGIN, EXTENT_RELATIVE_MARGIN, bin_gaussians,
+from gae_jax.render import composite as comp
+from gae_jax.render import splat, wabe
+from gae_jax.render.camera import look_at_w2c, make_camera
+from gae_jax.render.projection import project
+from gae_jax.render.tiles import (EXTENT_ABSOLUTE_MARGIN, EXTENT_RELATIVE_MARGIN, bin_gaussians,
                            depth_order)
 from tests import bruteforce
 from tests.helpers import assert_tree_finite, random_unit_cotangent

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from gae_jax import data, evaluate, head, train
+from gae_jax.scene import synthetic
+from gae_jax import evaluate, train
+from gae_jax.model import head
 from gae_jax import reconstruct as rc
 from tests.helpers import near
 
@@ -19,7 +21,7 @@ SIZE = 96
 
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
-    scene = data.make_synthetic_scene(size=SIZE, num_cameras=9, frames_per_sequence=3,
+    scene = synthetic.make_synthetic_scene(size=SIZE, num_cameras=9, frames_per_sequence=3,
                                       cache_dir=str(tmp_path_factory.mktemp("c")),
                                       progress=False)
     model, assets = head.make_head()

@@ -5,7 +5,8 @@ import os
 import numpy as np
 import pytest
 
-from gae_jax import data, head
+from gae_jax.scene import synthetic
+from gae_jax.model import head
 from tests.helpers import near
 
 SMALL = dict(size=40, num_cameras=9, frames_per_sequence=6, progress=False)
@@ -15,17 +16,17 @@ SMALL = dict(size=40, num_cameras=9, frames_per_sequence=6, progress=False)
 @pytest.fixture(scope="module")
 def scene_and_dir(tmp_path_factory):
     cache = str(tmp_path_factory.mktemp("cache"))
-    return data.make_synthetic_scene(cache_dir=cache, **SMALL), cache
+    return synthetic.make_synthetic_scene(cache_dir=cache, **SMALL), cache
 
 
 def test_splits_cameras_and_identities(scene_and_dir):
     scene, _ = scene_and_dir
-    assert scene.held_out_cameras == (data.HELD_OUT_CAMERA,)
-    assert set(scene.train_cameras) == set(range(9)) - {data.HELD_OUT_CAMERA}
+    assert scene.held_out_cameras == (synthetic.HELD_OUT_CAMERA,)
+    assert set(scene.train_cameras) == set(range(9)) - {synthetic.HELD_OUT_CAMERA}
     splits = {s.name: (s.identity, s.split) for s in scene.sequences.values()}
-    assert all(splits[n] == ("A", "train") for n in data.TRAIN_SEQUENCES)
-    assert splits[data.HELD_OUT_SEQUENCE] == ("A", "self_reenactment")
-    assert splits[data.CROSS_SEQUENCE] == ("B", "cross_identity")
+    assert all(splits[n] == ("A", "train") for n in synthetic.TRAIN_SEQUENCES)
+    assert splits[synthetic.HELD_OUT_SEQUENCE] == ("A", "self_reenactment")
+    assert splits[synthetic.CROSS_SEQUENCE] == ("B", "cross_identity")
     assert not np.allclose(scene.shapes["A"], scene.shapes["B"])
     assert np.abs(scene.vertex_colors["A"] - scene.vertex_colors["B"]).max() > 0.1
     for name, img in scene.images.items():
@@ -51,7 +52,7 @@ def test_open_jaw_shows_teeth_closed_does_not(scene_and_dir):
     scene, _ = scene_and_dir
     teeth = head.REGION_ID["teeth"]
     jaw = scene.sequences["jaw"]
-    front = data.HELD_OUT_CAMERA
+    front = synthetic.HELD_OUT_CAMERA
     counts = [(scene.regions["jaw"][front, t] == teeth).sum() for t in range(jaw.num_frames)]
     assert counts[0] == 0 and max(counts) > 0
     widest = int(np.argmax(jaw.jaw[:, 0]))
@@ -62,13 +63,13 @@ def test_second_build_comes_from_the_cache_and_is_identical(scene_and_dir):
     scene, cache = scene_and_dir
     files = os.listdir(cache)
     assert len(files) == 1 and files[0].startswith("scene-") and files[0].endswith(".npz")
-    again = data.make_synthetic_scene(cache_dir=cache, **SMALL)
+    again = synthetic.make_synthetic_scene(cache_dir=cache, **SMALL)
     for name in scene.images:
         np.testing.assert_array_equal(again.images[name], scene.images[name])
     other = dict(SMALL, background="black")
-    assert data._cache_key(dict(size=40)) != data._cache_key(dict(size=41))
+    assert synthetic._cache_key(dict(size=40)) != synthetic._cache_key(dict(size=41))
     with pytest.raises(ValueError, match="background"):
-        data.make_synthetic_scene(cache_dir=cache, **dict(other, background="grey"))
+        synthetic.make_synthetic_scene(cache_dir=cache, **dict(other, background="grey"))
 
 
 def test_render_frame_with_edited_colours_changes_only_that_region(scene_and_dir):
@@ -79,7 +80,7 @@ def test_render_frame_with_edited_colours_changes_only_that_region(scene_and_dir
     faces = np.asarray(model.faces)
     lip_vertices = np.unique(faces[assets.face_regions == head.REGION_ID["lips"]])
     colours[lip_vertices] = (0.1, 0.2, 0.9)
-    img, reg = data.render_frame(model, assets.face_regions, colours, scene.shapes["A"], seq, 2,
+    img, reg = synthetic.render_frame(model, assets.face_regions, colours, scene.shapes["A"], seq, 2,
                                  scene.intrinsics, scene.w2c, 40, scene.background,
                                  supersample=2)  # the scene default
     original = scene.images["talk"][:, 2]
@@ -87,7 +88,7 @@ def test_render_frame_with_edited_colours_changes_only_that_region(scene_and_dir
     np.testing.assert_array_equal(reg, scene.regions["talk"][:, 2])
     lips = reg == head.REGION_ID["lips"]
     assert changed[lips].mean() > 0.9 and not changed[~near(lips)].any()
-    unedited, _ = data.render_frame(model, assets.face_regions, scene.vertex_colors["A"],
+    unedited, _ = synthetic.render_frame(model, assets.face_regions, scene.vertex_colors["A"],
                                     scene.shapes["A"], seq, 2, scene.intrinsics, scene.w2c, 40,
                                     scene.background, supersample=2)  # the scene default
     np.testing.assert_array_equal(unedited, original)

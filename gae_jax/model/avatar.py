@@ -19,9 +19,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gae_jax import sh
-from gae_jax.projection import quat_to_rotmat
-from gae_jax.splat import Gaussians
+from gae_jax.render import sh
+from gae_jax.render.projection import quat_to_rotmat
+from gae_jax.render.splat import Gaussians
 
 INIT_OPACITY = 0.1
 # A split child's scale is its parent's divided by this (3DGS: 0.8 * N with N = 2 children).

@@ -32,9 +32,9 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from gae_jax import wabe
-from gae_jax.projection import ALPHA_THRESHOLD
-from gae_jax.tiles import TILE_SIZE
+from gae_jax.render import wabe
+from gae_jax.render.projection import ALPHA_THRESHOLD
+from gae_jax.render.tiles import TILE_SIZE
 
 TRANSMITTANCE_MIN = 1e-4
 PIXELS_PER_TILE = TILE_SIZE * TILE_SIZE

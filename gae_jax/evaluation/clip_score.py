@@ -117,7 +117,7 @@ def direction_consistency(clip: Clip, originals, edits) -> float:
 
 def captions(prompt: str) -> tuple:
     """(source, target) captions for CLIP-S, derived from an instruction."""
-    from gae_jax.editors import semantic, style
+    from gae_jax.edit.editors import semantic, style
 
     source = "a photo of a person's face"
     try:

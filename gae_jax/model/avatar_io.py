@@ -14,11 +14,11 @@ import io as _io
 import jax.numpy as jnp
 import numpy as np
 
-from gae_jax import sh
-from gae_jax.avatar import Avatar
-from gae_jax.flame import FlameParams
-from gae_jax.io import PlyError, atomic_write_bytes, read_ply, require, write_ply
-from gae_jax.splat import Gaussians
+from gae_jax.render import sh
+from gae_jax.model.avatar import Avatar
+from gae_jax.model.flame import FlameParams
+from gae_jax.util.fileio import PlyError, atomic_write_bytes, read_ply, require, write_ply
+from gae_jax.render.splat import Gaussians
 
 FLAME_PARAM_KEYS = ("rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation", "expr")
 

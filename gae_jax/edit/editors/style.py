@@ -11,7 +11,7 @@ import dataclasses
 import jax
 import numpy as np
 
-from gae_jax.editors import as_image
+from gae_jax.edit.editors import as_image
 
 STYLE_WORDS = {
     "oil": ("oil",),

@@ -20,7 +20,7 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from gae_jax.flame import FLAME_PARENTS, FlameModel, FlameParams
+from gae_jax.model.flame import FLAME_PARENTS, FlameModel, FlameParams
 
 REGIONS = ("skin", "hair", "brows", "lips", "mouth", "teeth", "sclera", "iris", "pupil")
 REGION_ID = {name: i for i, name in enumerate(REGIONS)}

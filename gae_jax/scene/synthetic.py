@@ -23,9 +23,9 @@ import os
 
 import numpy as np
 
-from gae_jax import flame, head
-from gae_jax.camera import Camera, look_at_w2c, make_camera
-from gae_jax.raycast import raycast_views
+from gae_jax.model import flame, head
+from gae_jax.render.camera import Camera, look_at_w2c, make_camera
+from gae_jax.scene.raycast import raycast_views
 
 SCENE_VERSION = 3
 LIGHT_DIRECTION = np.array([0.35, 0.55, 0.75])  # in head space, towards the light
@@ -323,7 +323,7 @@ def _progress(total, desc, enabled):
 
 
 def _save_cache(path, images, regions):
-    from gae_jax.io import atomic_write_bytes
+    from gae_jax.util.fileio import atomic_write_bytes
 
     buf = io.BytesIO()
     arrays = {f"images/{k}": v for k, v in images.items()}

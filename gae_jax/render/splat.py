@@ -20,11 +20,11 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from gae_jax import composite as comp
-from gae_jax import sh, wabe
-from gae_jax.camera import Camera
-from gae_jax.projection import project
-from gae_jax.tiles import bin_gaussians
+from gae_jax.render import composite as comp
+from gae_jax.render import sh, wabe
+from gae_jax.render.camera import Camera
+from gae_jax.render.projection import project
+from gae_jax.render.tiles import bin_gaussians
 
 DEFAULT_ALPHA_CLAMP = 0.99
 DEFAULT_TILE_CAPACITY = 256

@@ -14,7 +14,7 @@ import dataclasses
 
 import numpy as np
 
-from gae_jax.camera import Camera
+from gae_jax.render.camera import Camera
 
 
 @dataclasses.dataclass(frozen=True)

@@ -356,7 +356,7 @@ def load_flame(path: str, n_shape: int = 300, n_expr: int = 100, dtype=jnp.float
 
 def save_flame(model: FlameModel, path: str) -> None:
     """Writes a model as gae_jax `.npz` (readable by `load_flame`), atomically."""
-    from gae_jax.io import atomic_write_bytes
+    from gae_jax.util.fileio import atomic_write_bytes
 
     buf = io.BytesIO()
     np.savez(buf, v_template=np.asarray(model.v_template), shapedirs=np.asarray(model.shapedirs),

@@ -4,7 +4,7 @@ import os
 
 import pytest
 
-from gae_jax.io import atomic_write_bytes
+from gae_jax.util.fileio import atomic_write_bytes
 
 
 def test_atomic_write_replaces_and_leaves_no_temporaries(tmp_path):

@@ -20,7 +20,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from gae_jax.camera import Camera
+from gae_jax.render.camera import Camera
 
 ALPHA_THRESHOLD = 1.0 / 255.0
 NEAR_PLANE = 0.01

@@ -30,15 +30,15 @@ class Editor(Protocol):
 def make_editor(name: str, **options) -> Editor:
     """The editor called `name` (one of `EDITORS`) with its options."""
     if name == "semantic":
-        from gae_jax.editors.semantic import SemanticEditor
+        from gae_jax.edit.editors.semantic import SemanticEditor
 
         return SemanticEditor(**options)
     if name == "style":
-        from gae_jax.editors.style import StyleEditor
+        from gae_jax.edit.editors.style import StyleEditor
 
         return StyleEditor(**options)
     if name == "ip2p":
-        from gae_jax.editors.ip2p import InstructPix2PixEditor
+        from gae_jax.edit.editors.ip2p import InstructPix2PixEditor
 
         return InstructPix2PixEditor(**options)
     raise ValueError(f"unknown editor {name!r}; choose one of {EDITORS}")

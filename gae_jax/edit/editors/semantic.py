@@ -34,8 +34,8 @@ import re
 import jax
 import numpy as np
 
-from gae_jax import head
-from gae_jax.editors import as_image
+from gae_jax.model import head
+from gae_jax.edit.editors import as_image
 
 REGION_WORDS = {
     "lips": ("lips", "lip"),

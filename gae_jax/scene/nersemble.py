@@ -20,7 +20,7 @@ import os
 
 import numpy as np
 
-from gae_jax.io import atomic_write_bytes, encode_png
+from gae_jax.util.fileio import atomic_write_bytes, encode_png
 
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 FRAME_FIELDS = ("timestep_index", "camera_index", "cx", "cy", "fl_x", "fl_y", "h", "w",
