@@ -82,14 +82,20 @@ def main(argv=None):
     camera = make_camera(look_at_w2c([0.0, 0.0, 0.55], [0.0, -0.01, 0.0], up=(0, 1, 0)),
                          args.size, args.size, fov_degrees=28.0)
 
+    poses = head_poses(model)
+    load = jax.jit(lambda p: splat.tile_load(
+        avatar.deform(gaussians_on_mesh, flame.lbs(model, p), model.faces), camera))
+    # Sized from the busiest tile over the poses: a small image puts many Gaussians in a tile.
+    capacity = max(int(load(p)) for p in poses.values())
+
     @fast_jit
     def render(params):
         verts = flame.lbs(model, params)
         g = avatar.deform(gaussians_on_mesh, verts, model.faces)
-        return splat.render(g, camera, background=jnp.ones(3), tile_capacity=1024)
+        return splat.render(g, camera, background=jnp.ones(3), tile_capacity=capacity)
 
     images, timings, overflow = [], {}, 0
-    for name, params in head_poses(model).items():
+    for name, params in poses.items():
         start = time.perf_counter()
         out = jax.block_until_ready(render(params))
         timings[name] = round(time.perf_counter() - start, 4)

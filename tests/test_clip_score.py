@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from gae_jax import instructions
 from gae_jax.evaluation import clip_score
 
 
@@ -41,7 +42,7 @@ def test_clip_metrics_equal_the_definition(tmp_path):
     rng = np.random.default_rng(0)
     originals = rng.random((3, 32, 32, 3)).astype(np.float32)
     edits = rng.random((3, 32, 32, 3)).astype(np.float32)
-    source, target = clip_score.captions("turn the lips blue")
+    source, target = instructions.captions("turn the lips blue")
 
     # the reference: the model's own normalised embeddings, numpy cosines
     mean = np.asarray(clip_score.OPENAI_MEAN).reshape(1, 1, 1, 3)
@@ -77,7 +78,7 @@ def test_clip_metrics_equal_the_definition(tmp_path):
 
 
 def test_captions_and_missing_folder(tmp_path):
-    assert clip_score.captions("turn the lips blue")[1].endswith("with blue lips")
-    assert "oil painting" in clip_score.captions("make it an oil painting")[1]
+    assert instructions.captions("turn the lips blue")[1].endswith("with blue lips")
+    assert "oil painting" in instructions.captions("make it an oil painting")[1]
     with pytest.raises(FileNotFoundError, match="config.json"):
         clip_score.load_clip(str(tmp_path))

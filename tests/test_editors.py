@@ -7,6 +7,7 @@ import jax
 import numpy as np
 import pytest
 
+from gae_jax import instructions
 from gae_jax.scene import synthetic
 from gae_jax.model import head
 from gae_jax.edit.editors import make_editor, semantic, style
@@ -28,20 +29,20 @@ def toy_render():
 
 
 def test_parse_understands_the_documented_vocabulary():
-    assert semantic.parse("Turn the lips blue") == semantic.Instruction(
-        "lips", semantic.COLOURS["blue"])
-    assert semantic.parse("make the hair white").region == "hair"
-    assert semantic.parse("give her red eyes").region == "iris"
-    striped = semantic.parse("add green stripes to the skin")
+    assert instructions.parse("Turn the lips blue") == instructions.Instruction(
+        "lips", instructions.COLOURS["blue"])
+    assert instructions.parse("make the hair white").region == "hair"
+    assert instructions.parse("give her red eyes").region == "iris"
+    striped = instructions.parse("add green stripes to the skin")
     assert striped.stripes and striped.region == "skin"
     with pytest.raises(ValueError, match="regions: .*lips.*colours: .*blue"):
-        semantic.parse("make him look older")
+        instructions.parse("make him look older")
     with pytest.raises(ValueError, match="no a colour"):
-        semantic.parse("turn the lips sideways")
-    assert style.parse("Make it an oil painting") == "oil"
-    assert style.parse("a pencil sketch") == "sketch"
+        instructions.parse("turn the lips sideways")
+    assert instructions.parse_style("Make it an oil painting") == "oil"
+    assert instructions.parse_style("a pencil sketch") == "sketch"
     with pytest.raises(ValueError, match="oil"):
-        style.parse("turn the lips blue")
+        instructions.parse_style("turn the lips blue")
 
 
 def test_semantic_edit_equals_the_closed_form_and_touches_only_the_region():
@@ -50,7 +51,7 @@ def test_semantic_edit_equals_the_closed_form_and_touches_only_the_region():
                                        dict(regions=regions))
     lips = regions == LIPS
     luma = np.array(head.ALBEDO["lips"]) @ semantic.LUMA
-    expected = np.asarray(semantic.COLOURS["blue"]) * (
+    expected = np.asarray(instructions.COLOURS["blue"]) * (
         (np.array(head.ALBEDO["lips"]) * shade[..., None]) @ semantic.LUMA / luma)[..., None]
     np.testing.assert_allclose(out[lips], expected[lips], atol=1e-5)
     np.testing.assert_array_equal(out[~lips], image[~lips])
@@ -102,8 +103,8 @@ def test_semantic_edit_of_the_truth_matches_the_ray_cast_ideal_edit():
     faces = np.asarray(model.faces)
     shaded = synthetic.shaded_colors(model, assets.vertex_colors, scene_shape)
     truth = raycast(verts, faces, shaded, assets.face_regions, camera)
-    instruction = semantic.parse("turn the lips blue")
-    albedo = semantic.ideal_albedo(instruction, assets.vertex_colors, faces, assets.face_regions,
+    instruction = instructions.parse("turn the lips blue")
+    albedo = instructions.ideal_albedo(instruction, assets.vertex_colors, faces, assets.face_regions,
                                    verts)
     ideal = raycast(verts, faces, synthetic.shaded_colors(model, albedo, scene_shape),
                     assets.face_regions, camera)
@@ -128,7 +129,7 @@ def test_stripes_follow_head_space_height():
                                        dict(regions=regions, canonical=canonical))
     changed = np.abs(out - image).max(-1) > 1e-6
     lips = regions == LIPS
-    np.testing.assert_array_equal(changed, lips & semantic.stripe_on(canonical[..., 1]))
+    np.testing.assert_array_equal(changed, lips & instructions.stripe_on(canonical[..., 1]))
     assert 0 < changed.sum() < lips.sum()
 
 

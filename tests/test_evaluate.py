@@ -4,10 +4,10 @@ closed form, the protocols' clips consecutive."""
 import numpy as np
 import pytest
 
-from gae_jax.scene import synthetic
 from gae_jax import evaluate
+from gae_jax.evaluation import lpips, metrics, protocols
 from gae_jax.model import head
-from gae_jax.evaluation import lpips
+from gae_jax.scene import synthetic
 from tests.test_losses import naive_ssim
 
 
@@ -18,7 +18,7 @@ def test_region_scores_equal_numpy_references():
     regions = np.full((2, 40, 36), head.REGION_ID["skin"])
     regions[:, 10:20, 5:30] = head.REGION_ID["lips"]
     regions[0, 25:30, 10:14] = head.REGION_ID["teeth"]
-    scores = evaluate.region_scores(ours, truth, regions, "lips")
+    scores = metrics.region_scores(ours, truth, regions, "lips")
     lips = regions == head.REGION_ID["lips"]
     mse = np.mean((ours[lips] - truth[lips]) ** 2)
     assert scores["psnr"]["edited"] == pytest.approx(10 * np.log10(1 / mse), abs=1e-3)
@@ -29,7 +29,7 @@ def test_region_scores_equal_numpy_references():
     lp = np.asarray(lpips.lpips_map(ours, truth))
     assert scores["lpips"]["edited"] == pytest.approx(lp[lips].mean(), abs=1e-4)
     assert scores["psnr"]["eyes"] is None  # no eye pixels
-    same = evaluate.region_scores(truth, truth, regions, "lips")
+    same = metrics.region_scores(truth, truth, regions, "lips")
     assert same["ssim"]["whole"] == pytest.approx(1.0, abs=1e-5)
     assert same["lpips"]["whole"] == pytest.approx(0.0, abs=1e-5)
 
@@ -38,30 +38,30 @@ def test_flicker_closed_form():
     rng = np.random.default_rng(1)
     truth = rng.random((5, 8, 8, 3))
     drift = truth + 0.01 * np.arange(5).reshape(5, 1, 1, 1)  # steady change: 0.01 per frame
-    assert evaluate.flicker(drift, truth) == pytest.approx(0.01)
+    assert metrics.flicker(drift, truth) == pytest.approx(0.01)
     blink = truth + 0.02 * (np.arange(5) % 2).reshape(5, 1, 1, 1)  # +-0.02 every frame
-    assert evaluate.flicker(blink, truth) == pytest.approx(0.02)
-    assert evaluate.flicker(truth + 0.3, truth) == pytest.approx(0.0, abs=1e-12)
+    assert metrics.flicker(blink, truth) == pytest.approx(0.02)
+    assert metrics.flicker(truth + 0.3, truth) == pytest.approx(0.0, abs=1e-12)
     mask = np.zeros((5, 8, 8), bool)
     mask[:, :4] = True
     local = truth.copy()
     local[::2, :4] += 0.1
-    assert evaluate.flicker(local, truth, mask) == pytest.approx(0.1)
+    assert metrics.flicker(local, truth, mask) == pytest.approx(0.1)
     with pytest.raises(ValueError, match="T >= 2"):
-        evaluate.flicker(truth[:1], truth[:1])
+        metrics.flicker(truth[:1], truth[:1])
 
 
 def test_temporal_clips_are_consecutive_frames_at_one_camera(tmp_path):
     scene = synthetic.make_synthetic_scene(size=16, num_cameras=4, frames_per_sequence=3,
                                       supersample=1, progress=False, cache_dir=str(tmp_path))
-    for name in evaluate.PROTOCOLS:
-        clip = evaluate.temporal_frames(scene, name)
+    for name in protocols.PROTOCOLS:
+        clip = protocols.temporal_frames(scene, name)
         seqs = {s for s, _ in clip.pairs}
         assert len(seqs) == 1 and [t for _, t in clip.pairs] == list(range(3))
         assert len(clip.cameras) == 1
-    assert evaluate.temporal_frames(scene, "novel_view").cameras == scene.held_out_cameras
+    assert protocols.temporal_frames(scene, "novel_view").cameras == scene.held_out_cameras
     with pytest.raises(ValueError, match="unknown protocol"):
-        evaluate.temporal_frames(scene, "nope")
+        protocols.temporal_frames(scene, "nope")
 
 
 def test_evaluate_cli_refuses_a_folder_that_is_not_a_run(tmp_path, capsys):

@@ -12,7 +12,7 @@ import pytest
 import scipy.sparse
 from jax.test_util import check_grads
 
-from gae_jax.model import flame
+from gae_jax.model import flame, flame_io
 
 # float64 JAX vs float64 numpy, same formulas: only summation order differs.
 LBS_TOLERANCE = 1e-10
@@ -181,20 +181,20 @@ def test_loads_flame_pickle_with_sparse_and_chumpy_members(tmp_path, protocol, x
     path = tmp_path / "generic_model.pkl"
     write_flame_pickle(path, arrays, protocol)
     assert "chumpy" not in sys.modules
-    model = flame.load_flame(str(path), n_shape=6, n_expr=4, dtype=jnp.float64)
+    model = flame_io.load_flame(str(path), n_shape=6, n_expr=4, dtype=jnp.float64)
     assert model.parents == flame.FLAME_PARENTS
     params = random_params(model)
     np.testing.assert_allclose(flame.lbs(model, params), naive_lbs(arrays, params),
                                atol=LBS_TOLERANCE)
-    fewer = flame.load_flame(str(path), n_shape=3, n_expr=2)
+    fewer = flame_io.load_flame(str(path), n_shape=3, n_expr=2)
     assert fewer.num_shape == 3 and fewer.num_expr == 2
 
 
 def test_npz_round_trip(tmp_path, x64):
     model = model_from(random_model_arrays())
     path = str(tmp_path / "head.npz")
-    flame.save_flame(model, path)
-    loaded = flame.load_flame(path, n_shape=6, n_expr=4, dtype=jnp.float64)
+    flame_io.save_flame(model, path)
+    loaded = flame_io.load_flame(path, n_shape=6, n_expr=4, dtype=jnp.float64)
     params = random_params(model)
     np.testing.assert_allclose(flame.lbs(loaded, params), flame.lbs(model, params), atol=1e-12)
 
@@ -212,8 +212,8 @@ def test_malicious_pickle_is_refused_and_runs_nothing(tmp_path):
     path = tmp_path / "evil.pkl"
     with open(path, "wb") as f:
         pickle.dump({"v_template": _Evil(marker)}, f, protocol=2)
-    with pytest.raises(flame.FlameFileError, match="refusing"):
-        flame.load_flame(str(path))
+    with pytest.raises(flame_io.FlameFileError, match="refusing"):
+        flame_io.load_flame(str(path))
     assert not marker.exists()
 
 
@@ -227,31 +227,31 @@ def test_missing_and_misshaped_fields_are_named(tmp_path):
     missing = dict(base)
     del missing["weights"]
     np.savez(path, **missing)
-    with pytest.raises(flame.FlameFileError, match="'weights'"):
-        flame.load_flame(str(path), n_shape=6, n_expr=4)
+    with pytest.raises(flame_io.FlameFileError, match="'weights'"):
+        flame_io.load_flame(str(path), n_shape=6, n_expr=4)
     bad = dict(base, posedirs=arrays["posedirs"][..., :30])
     np.savez(path, **bad)
-    with pytest.raises(flame.FlameFileError, match="'posedirs'"):
-        flame.load_flame(str(path), n_shape=6, n_expr=4)
+    with pytest.raises(flame_io.FlameFileError, match="'posedirs'"):
+        flame_io.load_flame(str(path), n_shape=6, n_expr=4)
     nan = dict(base, v_template=np.full_like(arrays["v_template"], np.nan))
     np.savez(path, **nan)
-    with pytest.raises(flame.FlameFileError, match="NaN"):
-        flame.load_flame(str(path), n_shape=6, n_expr=4)
-    with pytest.raises(flame.FlameFileError, match="components"):
+    with pytest.raises(flame_io.FlameFileError, match="NaN"):
+        flame_io.load_flame(str(path), n_shape=6, n_expr=4)
+    with pytest.raises(flame_io.FlameFileError, match="components"):
         np.savez(path, **base)
-        flame.load_flame(str(path), n_shape=50, n_expr=4)
+        flame_io.load_flame(str(path), n_shape=50, n_expr=4)
     truncated = tmp_path / "t.pkl"
     write_flame_pickle(truncated, arrays)
     truncated.write_bytes(truncated.read_bytes()[:200])
-    with pytest.raises(flame.FlameFileError, match="t.pkl"):
-        flame.load_flame(str(truncated))
+    with pytest.raises(flame_io.FlameFileError, match="t.pkl"):
+        flame_io.load_flame(str(truncated))
 
 
 def test_teeth_follow_neck_and_jaw_rigidly(x64):
     arrays = random_model_arrays(v=60)
     model = model_from(arrays)
     upper, lower = np.arange(0, 15), np.arange(15, 30)
-    teeth = flame.add_teeth(model, upper, lower)
+    teeth = flame_io.add_teeth(model, upper, lower)
     assert teeth.num_vertices == 60 + 120 and teeth.faces.shape[0] == 40 + 168
     rest = np.asarray(teeth.v_template)[60:]
     d = np.mean(np.linalg.norm(arrays["v_template"][upper] - arrays["v_template"][lower], axis=1))
@@ -269,3 +269,37 @@ def test_teeth_follow_neck_and_jaw_rigidly(x64):
     np.testing.assert_allclose(dist(moved), dist(rest[60:]), atol=1e-10)  # rigid
     np.testing.assert_allclose(flame.lbs(teeth, random_params(teeth))[:60],
                                flame.lbs(model, random_params(model)), atol=1e-12)
+
+
+def test_flame_pickle_layout_round_trip(tmp_path, x64):
+    arrays = random_model_arrays()
+    model = model_from(arrays)
+    path = str(tmp_path / "generic_model.pkl")
+    flame_io.save_flame(model, path)
+    with open(path, "rb") as f:
+        raw = pickle.load(f)
+    assert raw["shapedirs"].shape[-1] == flame_io.FLAME_IDENTITY_COMPONENTS + model.num_expr
+    assert raw["kintree_table"].shape == (2, len(model.parents))
+    loaded = flame_io.load_flame(path, n_shape=model.num_shape, n_expr=model.num_expr,
+                                 dtype=jnp.float64)
+    params = random_params(model)
+    np.testing.assert_allclose(np.asarray(flame.lbs(loaded, params)),
+                               np.asarray(flame.lbs(model, params)), rtol=1e-12, atol=1e-12)
+    assert loaded.parents == model.parents
+
+
+def test_face_regions_from_masks_take_the_smallest_mask_holding_the_face(tmp_path):
+    faces = np.array([[0, 1, 2], [1, 2, 3], [3, 4, 5], [0, 4, 5]])
+    masks = {"face": np.arange(6), "lips": np.array([1, 2, 3]), "left_eyeball": np.array([3, 4, 5]),
+             "unknown_name": np.array([0])}
+    path = tmp_path / "FLAME_masks.pkl"
+    with open(path, "wb") as f:
+        pickle.dump(masks, f, protocol=2)
+    loaded = flame_io.load_flame_masks(str(path))
+    regions = flame_io.face_regions_from_masks(faces, loaded, 6)
+    from gae_jax.model.head import REGION_ID
+
+    assert regions.tolist() == [REGION_ID["skin"], REGION_ID["lips"], REGION_ID["sclera"],
+                                REGION_ID["skin"]]
+    with pytest.raises(flame_io.FlameFileError, match="outside"):
+        flame_io.face_regions_from_masks(faces, {"lips": np.array([9])}, 6)

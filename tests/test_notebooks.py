@@ -35,7 +35,7 @@ def test_quickstart_runs_headless_at_its_small_setting(tmp_path, monkeypatch):
                             resources={"metadata": {"path": str(tmp_path)}}).execute()
     run = tmp_path / "runs" / "notebooks" / "quickstart"
     metrics = json.loads((run / "metrics.json").read_text())
-    assert metrics["config"]["size"] == 32 and metrics["config"]["iterations"] == 5
+    assert metrics["scene"]["size"] == 32 and metrics["config"]["iterations"] == 5
     assert (run / "grid.png").is_file()
     printed = "".join(o.get("text", "") for c in book.cells if c.cell_type == "code"
                       for o in c.get("outputs", []))

@@ -6,9 +6,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gae_jax.scene import synthetic
 from gae_jax import reconstruct
+from gae_jax.fit import densify, step
+from gae_jax.fit.config import FitStepConfig, ReconstructConfig
+from gae_jax.fit.fit import fit, initial_avatar
 from gae_jax.render import splat
+from gae_jax.scene import rig as rigs
+from gae_jax.scene import synthetic
 
 
 @pytest.fixture(scope="module")
@@ -18,8 +22,8 @@ def scene(tmp_path_factory):
 
 
 def test_fit_lowers_the_photometric_loss(scene):
-    config = reconstruct.ReconstructConfig(iterations=120, seed=1)
-    fitted, history = reconstruct.fit(scene, config)
+    config = ReconstructConfig(iterations=120, seed=1)
+    fitted, history = fit(scene, config)
     photo = np.array([h["photometric"] for h in history])
     assert len(history) == 120 and np.all(np.isfinite(photo))
     assert photo[-30:].mean() < 0.7 * photo[:10].mean(), (photo[:10].mean(), photo[-30:].mean())
@@ -32,18 +36,18 @@ class Interrupt(Exception):
 
 
 def test_resume_after_a_crash_equals_the_uninterrupted_run(scene, tmp_path):
-    config = reconstruct.ReconstructConfig(iterations=20, checkpoint_every=10, densify_every=10,
+    config = ReconstructConfig(iterations=20, checkpoint_every=10, densify_every=10,
                                            densify_from=10, densify_until=0.9,
                                            grad_threshold=1e-6, seed=2)
-    full, full_history = reconstruct.fit(scene, config, checkpoint_dir=str(tmp_path / "a"))
+    full, full_history = fit(scene, config, checkpoint_dir=str(tmp_path / "a"))
 
     def crash(i, metrics):
         if i == 15:
             raise Interrupt
 
     with pytest.raises(Interrupt):
-        reconstruct.fit(scene, config, progress_fn=crash, checkpoint_dir=str(tmp_path / "b"))
-    resumed, history = reconstruct.fit(scene, config, checkpoint_dir=str(tmp_path / "b"),
+        fit(scene, config, progress_fn=crash, checkpoint_dir=str(tmp_path / "b"))
+    resumed, history = fit(scene, config, checkpoint_dir=str(tmp_path / "b"),
                                        resume=True)
     assert resumed.num == full.num
     for a, b in zip(jax.tree_util.tree_leaves(full), jax.tree_util.tree_leaves(resumed)):
@@ -52,19 +56,16 @@ def test_resume_after_a_crash_equals_the_uninterrupted_run(scene, tmp_path):
     np.testing.assert_allclose([h["loss"] for h in history], [h["loss"] for h in full_history])
     counts = {h["num_gaussians"] for h in full_history}
     assert len(counts) > 1, "densify / prune changed the Gaussian count during the fit"
-    other = reconstruct.ReconstructConfig(iterations=21, checkpoint_every=10)
+    other = ReconstructConfig(iterations=21, checkpoint_every=10)
     with pytest.raises(ValueError, match="different ReconstructConfig"):
-        reconstruct.fit(scene, other, checkpoint_dir=str(tmp_path / "b"), resume=True)
+        fit(scene, other, checkpoint_dir=str(tmp_path / "b"), resume=True)
 
 
 def test_densify_and_prune_carry_adam_moments_with_each_gaussian(scene):
-    from gae_jax.model import head
-
-    model, assets = head.make_head()
-    config = reconstruct.ReconstructConfig(grad_threshold=0.5)  # prune_unseen: faces may empty
-    fixed = reconstruct.initial_avatar(model, scene, assets, config, jax.random.PRNGKey(0))
-    params = {k: getattr(fixed, k) for k in reconstruct.TRAINABLE}
-    opt = reconstruct.optimizer(config)
+    config = ReconstructConfig(grad_threshold=0.5)  # prune_unseen: faces may empty
+    fixed = initial_avatar(scene, config, jax.random.PRNGKey(0))
+    params = fixed.trainable()
+    opt = step.optimizer(FitStepConfig.of(config))
     n = fixed.num
     # Moments that identify each Gaussian: mu = index.
     state = opt.init(params)
@@ -75,10 +76,10 @@ def test_densify_and_prune_carry_adam_moments_with_each_gaussian(scene):
     seen = jnp.ones(n, jnp.int32)
     logits = params["opacity_logits"].at[10:13].set(-20.0)  # three nearly transparent
     params = dict(params, opacity_logits=logits)
-    fit_state = reconstruct.FitState(params, state, jax.random.PRNGKey(1), jnp.int32(0),
+    fit_state = step.FitState(params, state, jax.random.PRNGKey(1), jnp.int32(0),
                                      grad_sum, seen)
-    new, new_fixed = reconstruct.densify_and_prune(fit_state, fixed, config,
-                                                   model.faces.shape[0], opt)
+    new, new_fixed = densify.densify_and_prune(fit_state, fixed, config,
+                                               scene.model.faces.shape[0])
     assert new_fixed.num == n + 5 - 3
     means_moment = [x for x in jax.tree_util.tree_leaves(new.opt_state)
                     if x.ndim == 2 and x.shape == (new_fixed.num, 3)][0]
@@ -90,24 +91,24 @@ def test_densify_and_prune_carry_adam_moments_with_each_gaussian(scene):
 
 
 def test_sh_mask_keeps_bands_up_to_the_degree():
-    np.testing.assert_array_equal(np.asarray(reconstruct.sh_mask((5, 16, 3), 1))[:, 0],
+    np.testing.assert_array_equal(np.asarray(step.sh_mask((5, 16, 3), 1))[:, 0],
                                   [1, 1, 1, 1] + [0] * 12)
-    np.testing.assert_array_equal(np.asarray(reconstruct.sh_mask((5, 9, 3), 2))[:, 0], [1] * 9)
-    np.testing.assert_array_equal(np.asarray(reconstruct.sh_mask((5, 16, 3), 0))[:, 0],
+    np.testing.assert_array_equal(np.asarray(step.sh_mask((5, 9, 3), 2))[:, 0], [1] * 9)
+    np.testing.assert_array_equal(np.asarray(step.sh_mask((5, 16, 3), 0))[:, 0],
                                   [1] + [0] * 15)
 
 
 def test_capacity_from_tile_load_leaves_no_tile_overflowing(scene):
     from gae_jax.model import avatar as av
-    from gae_jax.model import head
 
-    model, assets = head.make_head()
-    config = reconstruct.ReconstructConfig()
-    a = reconstruct.initial_avatar(model, scene, assets, config, jax.random.PRNGKey(0))
+    model = scene.model
+    config = ReconstructConfig()
+    a = initial_avatar(scene, config, jax.random.PRNGKey(0))
     g = av.deform(a, model.v_template, model.faces)
     camera = scene.camera(0)
     load = int(splat.tile_load(g, camera))
     full = splat.render(g, camera, tile_capacity=load)
     short = splat.render(g, camera, tile_capacity=load - 1)
     assert int(full.stats.overflow_tiles) == 0 and int(short.stats.overflow_tiles) >= 1
-    assert reconstruct.required_capacity(a, model, model.v_template, [camera]) >= load
+    rig = rigs.put_rig(scene, a, model.v_template[None], tile_capacity=1)
+    assert rigs.required_capacity(a.trainable(), rig, [0]) >= load

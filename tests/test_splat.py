@@ -23,8 +23,9 @@ render = jax.jit(splat.render, static_argnames=RENDER_STATIC)
 # float64 renderer vs float64 numpy: only summation order differs.
 X64_TOLERANCE = 1e-9
 # float32 renderer vs float64 numpy: a pixel whose alpha sits within rounding of a cut-off may
-# flip; everything else agrees to float32 accuracy.
-F32_TOLERANCE = 2e-4
+# flip; everything else agrees to float32 rounding accumulated over the ~50 terms composited per
+# pixel (eps 1.2e-7 x 50 = 6e-6; measured max 1.3e-6 on these scenes).
+F32_TOLERANCE = 6e-6
 F32_MAX_FLIPPED_FRACTION = 0.002
 
 
@@ -153,8 +154,8 @@ def test_pair_budget_drops_farthest_gaussians_and_counts_them(x64):
     kept_ids = set(np.asarray(short.table).ravel()) - {-1}
     dropped_ids = set(np.asarray(full.table).ravel()) - {-1} - kept_ids
     depths = np.asarray(p.depths)
-    if dropped_ids and kept_ids:
-        assert min(depths[list(dropped_ids)]) >= max(depths[list(kept_ids)]) - 1e-12
+    assert dropped_ids and kept_ids, "the budget must drop some Gaussians and keep others"
+    assert min(depths[list(dropped_ids)]) >= max(depths[list(kept_ids)]) - 1e-12
 
 
 def test_tile_lists_are_depth_sorted_with_index_ties():

@@ -1,60 +1,64 @@
 """The edit loop: it learns the edit where the edit is and leaves the occluded teeth alone, the
-step compiles once, runs the same sharded over two devices, resumes exactly, and the CLI refuses
-bad input clearly."""
+step compiles once, runs the same sharded over two devices (through the loop itself), resumes
+exactly, and the CLI refuses bad input clearly."""
 
 import dataclasses
+import json
 
 import jax
 import numpy as np
 import pytest
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from gae_jax.scene import synthetic
 from gae_jax import evaluate, train
+from gae_jax.edit import config as edit_config
+from gae_jax.edit import edit, sampler
+from gae_jax.evaluation import protocols, truth
+from gae_jax.fit.config import ReconstructConfig
+from gae_jax.fit.fit import initial_avatar
 from gae_jax.model import head
-from gae_jax import reconstruct as rc
+from gae_jax.scene import rig as rigs
+from gae_jax.scene import synthetic
+from gae_jax.scene.load import SCENE_HELP, SceneConfig
 from tests.helpers import near
 
 SIZE = 96
 
 
-
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
     scene = synthetic.make_synthetic_scene(size=SIZE, num_cameras=9, frames_per_sequence=3,
-                                      cache_dir=str(tmp_path_factory.mktemp("c")),
-                                      progress=False)
-    model, assets = head.make_head()
-    original = rc.initial_avatar(model, scene, assets, rc.ReconstructConfig(),
-                                 jax.random.PRNGKey(0))
+                                           cache_dir=str(tmp_path_factory.mktemp("c")),
+                                           progress=False)
+    original = initial_avatar(scene, ReconstructConfig(), jax.random.PRNGKey(0))
     return scene, original
 
 
 def session_for(base, **overrides):
     scene, original = base
-    config = train.preset("fast", **{**dict(size=SIZE, editor_noise=0.0, checkpoint_every=0),
-                                      **overrides})
-    return train.setup(config, scene=scene, original=original)
+    config = edit_config.preset("fast", **{**dict(editor_noise=0.0, checkpoint_every=0),
+                                           **overrides})
+    return edit.setup(config, scene, original)
 
 
 def test_a_short_edit_turns_the_lips_and_leaves_the_teeth(base):
     s = session_for(base, iterations=40, lr=5e-2)
-    edited, history = train.edit_avatar(s)
+    edited, history = edit.edit_avatar(s)
     assert len(history) == 40 and all(np.isfinite(h["recon"]) for h in history)
     assert np.mean([h["recon"] for h in history[-10:]]) < np.mean(
         [h["recon"] for h in history[:5]])
     teeth_id = head.REGION_ID["teeth"]
     shown = [(n, t) for n in ("talk", "jaw", "mix") for t in range(3)
              if (s.scene.regions[n][:, t] == teeth_id).sum() > 20]
-    protocol = evaluate.ProtocolFrames("teeth_shown", shown, tuple(range(9)))
-    verts = train.protocol_vertices(s, protocol)
-    before = train.render_avatar_frames(s, s.original, verts, protocol.cameras)
-    after = train.render_avatar_frames(s, edited, verts, protocol.cameras)
-    _, regions = evaluate.ideal_frames(s.scene, s.model, s.assets, s.assets.vertex_colors,
-                                       protocol)
-    lips = regions == head.REGION_ID["lips"]
+    frames = truth.frames_truth(s.scene, protocols.ProtocolFrames("teeth_shown", shown,
+                                                                  tuple(range(9))),
+                                s.scene.albedo["A"])
+    rig = rigs.with_vertices(s.rig, frames.vertices)
+    render = rigs.make_view_renderer(s.step_config.blend)
+    before = rigs.render_views(render, s.original.trainable(), rig, frames.cameras)
+    after = rigs.render_views(render, edited.trainable(), rig, frames.cameras)
+    lips = frames.regions == head.REGION_ID["lips"]
     # Teeth pixels not next to a lip pixel (a lip Gaussian's tail covers its neighbours).
-    teeth = (regions == head.REGION_ID["teeth"]) & ~near(lips)
+    teeth = (frames.regions == head.REGION_ID["teeth"]) & ~near(lips)
     assert lips.sum() > 20 and teeth.sum() > 3
     blue_gain = (after[..., 2] - before[..., 2])[lips].mean()
     teeth_change = np.abs(after - before).max(-1)[teeth].mean()
@@ -64,57 +68,63 @@ def test_a_short_edit_turns_the_lips_and_leaves_the_teeth(base):
 
 def test_step_compiles_once(base):
     s = session_for(base, iterations=3)
-    train.edit_avatar(s)
+    edit.edit_avatar(s)
     assert s.step._cache_size() == 1
     assert s.preview._cache_size() == 1
 
 
 def test_resume_after_interruption_equals_the_uninterrupted_run(base, tmp_path):
     s = session_for(base, iterations=6, checkpoint_every=3, editor_noise=0.5)
-    full, full_history = train.edit_avatar(s, str(tmp_path / "a"))
-    train.edit_avatar(s, str(tmp_path / "b"), stop_after=4)  # checkpoint at 3, dies at 4
-    resumed, history = train.edit_avatar(s, str(tmp_path / "b"), resume=True)
+    full, full_history = edit.edit_avatar(s, str(tmp_path / "a"))
+    edit.edit_avatar(s, str(tmp_path / "b"), stop_after=4)  # checkpoint at 3, dies at 4
+    resumed, history = edit.edit_avatar(s, str(tmp_path / "b"), resume=True)
     for a, b in zip(jax.tree_util.tree_leaves(full), jax.tree_util.tree_leaves(resumed)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert len(history) == len(full_history) == 6
-    other = session_for(base, iterations=7, checkpoint_every=3, editor_noise=0.5)
-    with pytest.raises(ValueError, match="different EditConfig"):
-        train.edit_avatar(other, str(tmp_path / "b"), resume=True)
+    other = session_for(base, iterations=7, checkpoint_every=3, editor_noise=0.5, lr=2e-2)
+    with pytest.raises(ValueError, match=r"different EditConfig: iterations .*lr \(there 0.01"):
+        edit.edit_avatar(other, str(tmp_path / "b"), resume=True)
 
 
-def test_sharded_batch_over_two_devices_equals_one_device(base):
+def test_sharded_loop_over_two_devices_equals_one_device(base, monkeypatch):
     assert len(jax.devices()) >= 2, "conftest forces two CPU devices"
-    s = session_for(base, batch=2)
-    state = train.initial_state(s)
-    editing = train.Editing(s)
-    batch = editing.batch(state.params, 0, jax.random.PRNGKey(0))
-    single, m1 = s.step(state, batch)
-    mesh = Mesh(np.array(jax.devices()[:2]), ("data",))
-    sharded_batch = {k: jax.device_put(v, NamedSharding(mesh, PartitionSpec("data")))
-                     for k, v in batch.items()}
-    replicated = jax.device_put(state, NamedSharding(mesh, PartitionSpec()))
-    double, m2 = s.step(replicated, sharded_batch)
-    assert len(sharded_batch["target"].sharding.device_set) == 2
-    for a, b in zip(jax.tree_util.tree_leaves(single), jax.tree_util.tree_leaves(double)):
+    s = session_for(base, batch=2, iterations=2)
+    assert sampler.data_mesh(2).devices.size == 2
+    placed = []
+    real_put = sampler.put_batch
+
+    def spy(batch, mesh):
+        out = real_put(batch, mesh)
+        placed.append(len(out["target"].sharding.device_set))
+        return out
+
+    monkeypatch.setattr(edit, "put_batch", spy)
+    sharded, h2 = edit.edit_avatar(s)
+    assert placed == [2, 2]
+    monkeypatch.setattr(edit, "data_mesh", lambda batch: None)
+    single, h1 = edit.edit_avatar(s)
+    for a, b in zip(jax.tree_util.tree_leaves(single), jax.tree_util.tree_leaves(sharded)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=2e-5, atol=2e-6)
-    np.testing.assert_allclose(float(m1["recon"]), float(m2["recon"]), rtol=1e-5)
+    np.testing.assert_allclose([h["recon"] for h in h1], [h["recon"] for h in h2], rtol=1e-5)
 
 
 def test_in2n_dataset_update_replaces_one_image_per_iteration(base):
     s = session_for(base, iterations=4, dataset_update=True, adversarial=False,
                     blend="standard")
-    editing = train.Editing(s)
-    state = train.initial_state(s)
+    edits = edit.make_sampler(s)
+    params = s.original.trainable()
     for i in range(4):
-        editing.batch(state.params, i, jax.random.PRNGKey(0))
-    assert sorted(editing.dataset) == sorted(editing.spots[:4])
+        edits.batch(params, i, jax.random.PRNGKey(0))
+    assert sorted(edits.dataset) == sorted(edits.spots[:4])
 
 
 def test_config_and_cli_refuse_bad_input_clearly(capsys):
     with pytest.raises(ValueError, match="blend must be one of"):
-        train.EditConfig(blend="additive")
+        edit_config.EditConfig(blend="additive")
+    with pytest.raises(ValueError, match="checkpoint_every must be >= 0"):
+        edit_config.EditConfig(checkpoint_every=-1)
     with pytest.raises(ValueError, match="unknown preset"):
-        train.preset("best")
+        edit_config.preset("best")
     with pytest.raises(SystemExit):
         train.main(["--iterations", "many"])
     assert "invalid int value" in capsys.readouterr().err
@@ -124,40 +134,48 @@ def test_config_and_cli_refuse_bad_input_clearly(capsys):
     assert "model_index.json" in capsys.readouterr().err
     assert train.main(["--editor", "ip2p"]) == 2
     assert "--ip2p-folder" in capsys.readouterr().err
+    assert train.main(["--data", "/nonexistent/folder"]) == 2
+    assert "error: /nonexistent/folder: no such folder" in capsys.readouterr().err
     text = train.parser().format_help()
-    for field in dataclasses.fields(train.EditConfig):
-        assert "--" + field.name.replace("_", "-") in text
-    assert set(train.HELP) == {f.name for f in dataclasses.fields(train.EditConfig)}
+    for cls in (edit_config.EditConfig, SceneConfig):
+        for field in dataclasses.fields(cls):
+            assert "--" + field.name.replace("_", "-") in text
+    assert set(edit_config.HELP) == {f.name for f in dataclasses.fields(edit_config.EditConfig)}
+    assert set(SCENE_HELP) == {f.name for f in dataclasses.fields(SceneConfig)}
 
 
-def test_every_preset_is_a_valid_config():
-    for name in train.PRESETS:
-        config = train.preset(name)
-        assert isinstance(config, train.EditConfig)
-    assert train.preset("paper").blend == "wabe" and train.preset("paper").iterations == 1000
-    assert train.preset("in2n").dataset_update and not train.preset("in2n").adversarial
-    assert train.preset("code").pair_mode == "code"
+def test_presets_differ_from_the_default_where_they_say():
+    default = dataclasses.asdict(edit_config.preset("fast"))
+    for name, knobs in edit_config.PRESETS.items():
+        config = dataclasses.asdict(edit_config.preset(name))
+        changed = {k for k in config if config[k] != default[k]}
+        assert changed == {k for k, v in knobs.items() if default[k] != v}, name
+        if name != "fast":
+            assert changed, f"preset {name} is the default under another name"
 
 
-def test_run_writes_outputs_and_the_evaluate_cli_rescores_them(base, tmp_path, monkeypatch,
-                                                                capsys):
-    import json
+def test_step_config_holds_what_the_step_reads_and_only_that(base):
+    a = edit_config.StepConfig.of(edit_config.preset("fast", prompt="turn the hair white",
+                                                     seed=3, iterations=7, editor_noise=0.9))
+    assert a == edit_config.StepConfig.of(edit_config.preset("fast"))
+    assert hash(a) == hash(edit_config.StepConfig.of(edit_config.preset("fast")))
+    assert a != edit_config.StepConfig.of(edit_config.preset("no_adv"))
 
+
+def test_run_writes_a_self_contained_folder_that_evaluate_rescores(base, tmp_path, capsys):
     from tests.test_clip_score import tiny_clip_folder
 
     scene, original = base
-    real_setup = train.setup
-    monkeypatch.setattr(train, "setup", lambda config, progress=False: real_setup(
-        config, scene=scene, original=original))
-    config = train.preset("fast", size=SIZE, iterations=3, checkpoint_every=0)
+    config = edit_config.preset("fast", iterations=3, checkpoint_every=0)
     out = tmp_path / "run"
-    metrics = train.run(config, str(out), progress=False, video=False)
-    for name in ("metrics.json", "grid.png", "edited_posed.ply", "edited_avatar/point_cloud.ply",
-                 "edited_avatar/flame_param.npz"):
+    metrics = train.run(config, str(out), scene, original, progress=False, video=False)
+    for name in ("metrics.json", "grid.png", "edited_posed.ply", truth.FILE_NAME,
+                 "edited_avatar/point_cloud.ply", "edited_avatar/flame_param.npz",
+                 "original_avatar/point_cloud.ply"):
         assert (out / name).is_file(), name
     written = metrics["evaluation"]
-    assert "skipped" in written["clip"]
-    for name in evaluate.PROTOCOLS:
+    assert "skipped" in written["clip"] and written["truth"] == "ideal edit"
+    for name in protocols.PROTOCOLS:
         for metric in ("psnr", "ssim", "lpips"):
             assert set(written[name]["ours"][metric]) >= {"whole", "edited", "teeth", "rest"}
         assert np.isfinite(written[name]["flicker"]["ours"]["whole"])
@@ -169,9 +187,10 @@ def test_run_writes_outputs_and_the_evaluate_cli_rescores_them(base, tmp_path, m
     table = capsys.readouterr().out
     assert "| novel_view | ours |" in table
     again = json.loads((out / "evaluation.json").read_text())
-    for name in evaluate.PROTOCOLS:
-        # the reloaded .ply scores as the in-memory avatar did (SH DC round trip)
-        assert again[name]["ours"]["psnr"]["whole"] == pytest.approx(
-            written[name]["ours"]["psnr"]["whole"], abs=0.01)
+    for name in protocols.PROTOCOLS:
+        for who in ("ours", "original_avatar"):
+            # the reloaded .ply files score as the in-memory avatars did (SH DC round trip)
+            assert again[name][who]["psnr"]["whole"] == pytest.approx(
+                written[name][who]["psnr"]["whole"], abs=0.01)
         assert -1 <= again[name]["clip_s"] <= 1 and -1 <= again[name]["clip_c"] <= 1
     assert (out / "evaluation.md").read_text().startswith("| protocol |")

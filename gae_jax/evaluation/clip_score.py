@@ -26,12 +26,6 @@ import numpy as np
 
 OPENAI_MEAN = (0.48145466, 0.4578275, 0.40821073)
 OPENAI_STD = (0.26862954, 0.26130258, 0.27577711)
-STYLE_CAPTIONS = {"oil": "an oil painting of a person's face",
-                  "sketch": "a pencil sketch of a person's face",
-                  "cartoon": "a cartoon of a person's face",
-                  "stylise": "a watercolour painting of a person's face"}
-
-
 @dataclasses.dataclass(frozen=True)
 class Clip:
     """A loaded CLIP: the Flax model, its tokenizer, input size and normalisation."""
@@ -113,22 +107,3 @@ def direction_consistency(clip: Clip, originals, edits) -> float:
         raise ValueError("CLIP-C needs at least two consecutive frames")
     d = _unit(clip.image_embeddings(edits) - clip.image_embeddings(originals))
     return float(np.mean(np.sum(d[1:] * d[:-1], axis=-1)))
-
-
-def captions(prompt: str) -> tuple:
-    """(source, target) captions for CLIP-S, derived from an instruction."""
-    from gae_jax.edit.editors import semantic, style
-
-    source = "a photo of a person's face"
-    try:
-        ins = semantic.parse(prompt)
-        colour = next(n for n, rgb in semantic.COLOURS.items() if tuple(rgb) == tuple(ins.colour))
-        what = (f"{colour} stripes on the {ins.region}" if ins.stripes
-                else f"{colour} {ins.region}")
-        return source, f"a photo of a person's face with {what}"
-    except ValueError:
-        pass
-    try:
-        return source, STYLE_CAPTIONS[style.parse(prompt)]
-    except ValueError:
-        return source, f"{source}, {prompt}"

@@ -24,6 +24,8 @@ from gae_jax.render.projection import quat_to_rotmat
 from gae_jax.render.splat import Gaussians
 
 INIT_OPACITY = 0.1
+# The per-Gaussian arrays an optimiser changes; `binding` and `regions` stay fixed.
+TRAINABLE = ("means", "quats", "log_scales", "opacity_logits", "colors")
 # A split child's scale is its parent's divided by this (3DGS: 0.8 * N with N = 2 children).
 SPLIT_SCALE_DIVISOR = 1.6
 
@@ -54,6 +56,14 @@ class Avatar:
     @property
     def num(self) -> int:
         return self.binding.shape[0]
+
+    def trainable(self) -> dict:
+        """The `TRAINABLE` arrays as a dict (what optimisers and `rig.render_bound` take)."""
+        return {k: getattr(self, k) for k in TRAINABLE}
+
+    def with_params(self, params: dict) -> "Avatar":
+        """This avatar's binding and regions with new trainable arrays."""
+        return Avatar(binding=self.binding, regions=self.regions, **params)
 
 
 def face_frames(vertices: jax.Array, faces: jax.Array):

@@ -134,3 +134,30 @@ def load_flame_params(path: str):
         static_offset=None if offset is None else jnp.broadcast_to(
             jnp.asarray(offset[0]), (t,) + offset.shape[1:]))
     return arr["shape"].reshape(-1), frames
+
+
+def save_avatar_folder(folder: str, avatar: Avatar, shape, frames: FlameParams) -> None:
+    """A GaussianAvatars avatar folder: `point_cloud.ply` and `flame_param.npz` (the motion
+    `frames`, stacked (T, ...), with identity `shape`)."""
+    import os
+
+    os.makedirs(folder, exist_ok=True)
+    save_avatar_ply(avatar, os.path.join(folder, "point_cloud.ply"))
+    save_flame_params(os.path.join(folder, "flame_param.npz"), shape, frames)
+
+
+def load_bound_avatar(path: str, face_regions) -> Avatar:
+    """A `point_cloud.ply` bound to a mesh with (F,) `face_regions`, ready to edit: degree-0 SH
+    becomes plain RGB (an Adam step on the DC coefficient would move RGB by only C0 = 0.28 of
+    it). PlyError when a binding names a face the mesh does not have."""
+    face_regions = np.asarray(face_regions)
+    binding = require(read_ply(path), ["binding_0"], path)[:, 0]
+    if binding.size and (binding.min() < 0 or binding.max() >= len(face_regions)):
+        raise PlyError(f"{path}: binding_0 names faces up to {int(binding.max())}, the mesh has "
+                       f"{len(face_regions)} (an avatar of another FLAME model?)")
+    loaded = load_avatar_ply(path, face_regions)
+    if loaded.colors.shape[1] == 1:
+        loaded = Avatar(binding=loaded.binding, means=loaded.means, quats=loaded.quats,
+                        log_scales=loaded.log_scales, opacity_logits=loaded.opacity_logits,
+                        colors=sh.dc_to_rgb(loaded.colors[:, 0]), regions=loaded.regions)
+    return loaded

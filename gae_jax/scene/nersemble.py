@@ -20,6 +20,7 @@ import os
 
 import numpy as np
 
+from gae_jax.scene.types import Scene, Sequence
 from gae_jax.util.fileio import atomic_write_bytes, encode_png
 
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -62,6 +63,7 @@ def export_scene(scene, folder: str) -> dict:
     (self-reenactment). Returns {split: number of frames}.
     """
     names = [n for n, s in scene.sequences.items() if s.identity == "A"]
+    os.makedirs(folder, exist_ok=True)
     timesteps = []  # (sequence name, frame) per global timestep index
     for name in names:
         timesteps += [(name, t) for t in range(scene.sequences[name].num_frames)]
@@ -185,3 +187,93 @@ def read_image(path: str) -> np.ndarray:
     if img is None:
         raise ValueError(f"{path}: missing or unreadable image")
     return img[..., ::-1].copy() if img.ndim == 3 else img
+
+
+def load_scene(folder: str, model, face_regions) -> Scene:
+    """A user's capture in this layout as a `Scene` posed by `model` (with (F,) `face_regions`).
+
+    The train split's timesteps become the training sequence "train" (its cameras the training
+    cameras), cameras that appear only in the val split are held out (novel view), and the test
+    split's timesteps not used for training become the self-reenactment sequence "test". Each
+    camera's intrinsics and pose are read from its first frame; the shape is the first flame
+    param file's. Images of (camera, timestep) pairs the folder does not hold stay zero.
+    Errors name the file and the field.
+    """
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(f"{folder}: no such folder")
+    splits = {"train": load_split(folder, "train")}
+    for split in ("val", "test"):
+        if os.path.isfile(os.path.join(folder, f"transforms_{split}.json")):
+            splits[split] = load_split(folder, split)
+    if not splits["train"]:
+        raise ValueError(f"{os.path.join(folder, 'transforms_train.json')}: no frames")
+    cameras = {}
+    for frames in splits.values():
+        for fr in frames:
+            cameras.setdefault(fr.camera, fr)
+    sizes = {(fr.width, fr.height) for fr in cameras.values()}
+    if len(sizes) != 1:
+        raise ValueError(f"{folder}: every camera must have the same image size, got "
+                         f"{sorted(sizes)}")
+    (width, height), = sizes
+    cam_ids = sorted(cameras)
+    column = {c: i for i, c in enumerate(cam_ids)}
+    train_cams = sorted({fr.camera for fr in splits["train"]})
+    held_out = sorted({fr.camera for fr in splits.get("val", [])} - set(train_cams))
+    train_steps = sorted({fr.timestep for fr in splits["train"]})
+    test_steps = sorted({fr.timestep for fr in splits.get("test", [])} - set(train_steps))
+
+    param_paths = {fr.timestep: fr.flame_param_path for frames in splits.values()
+                   for fr in frames}
+    params = {t: load_flame_param(param_paths[t]) for t in train_steps + test_steps}
+    shape = params[train_steps[0]]["shape"].reshape(-1)
+    for t, p in params.items():
+        if p["expr"].shape[1] != model.num_expr:
+            raise ValueError(f"{param_paths[t]}: 'expr' has {p['expr'].shape[1]} coefficients, "
+                             f"the FLAME model {model.num_expr}")
+    if shape.shape[0] != model.num_shape:
+        raise ValueError(f"{param_paths[train_steps[0]]}: 'shape' has {shape.shape[0]} "
+                         f"coefficients, the FLAME model {model.num_shape}")
+
+    def sequence(name, split, steps):
+        def stack(key):
+            return np.concatenate([params[t][key] for t in steps]).astype(np.float64)
+
+        return Sequence(name=name, identity="A", split=split, expr=stack("expr"),
+                        rotation=stack("rotation"), neck=stack("neck_pose"),
+                        jaw=stack("jaw_pose"), eyes=stack("eyes_pose"),
+                        translation=stack("translation"))
+
+    sequences = {"train": sequence("train", "train", train_steps)}
+    steps_of = {"train": train_steps}
+    if test_steps:
+        sequences["test"] = sequence("test", "self_reenactment", test_steps)
+        steps_of["test"] = test_steps
+    images, regions = {}, {}
+    for name, steps in steps_of.items():
+        row = {t: i for i, t in enumerate(steps)}
+        images[name] = np.zeros((len(cam_ids), len(steps), height, width, 3), np.uint8)
+        regions[name] = np.full((len(cam_ids), len(steps), height, width), -1, np.int8)
+        for frames in splits.values():
+            for fr in frames:
+                if fr.timestep not in row:
+                    continue
+                image = read_image(fr.image_path)
+                if image.shape != (height, width, 3):
+                    raise ValueError(f"{fr.image_path}: expected a ({height}, {width}, 3) RGB "
+                                     f"image, got {image.shape}")
+                images[name][column[fr.camera], row[fr.timestep]] = image
+                if fr.mask_path is not None:
+                    mask = read_image(fr.mask_path)
+                    mask = mask if mask.ndim == 2 else mask[..., 0]
+                    regions[name][column[fr.camera], row[fr.timestep]] = np.where(
+                        mask > 127, 0, -1)
+    grey = np.full((model.num_vertices, 3), 0.5, np.float32)
+    return Scene(model=model, face_regions=np.asarray(face_regions, np.int32),
+                 intrinsics=np.stack([cameras[c].intrinsics for c in cam_ids]).astype(np.float32),
+                 w2c=np.stack([cameras[c].w2c for c in cam_ids]).astype(np.float32),
+                 width=width, height=height,
+                 train_cameras=tuple(column[c] for c in train_cams),
+                 held_out_cameras=tuple(column[c] for c in held_out), shapes={"A": shape},
+                 vertex_colors={"A": grey}, sequences=sequences, images=images, regions=regions,
+                 background=np.ones(3, np.float32), kind="capture")

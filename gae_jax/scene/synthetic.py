@@ -1,5 +1,8 @@
 """The embedded default scene: the procedural head, filmed by a camera rig, with ground truth.
 
+The scene is a `scene.types.Scene` that carries the head model and its albedo, so the ideal
+edit of any instruction can be ray-cast too (`evaluation.truth`).
+
 `make_synthetic_scene(...)` builds identity A and identity B (different shape coefficients and
 albedo), several expression / pose sequences per identity, a rig of cameras on the frontal
 hemisphere (one held out, as NeRSemble's camera 8), and ground-truth images rendered by ray
@@ -26,6 +29,8 @@ import numpy as np
 from gae_jax.model import flame, head
 from gae_jax.render.camera import Camera, look_at_w2c, make_camera
 from gae_jax.scene.raycast import raycast_views
+from gae_jax.scene.types import Scene, Sequence
+from gae_jax.util.fileio import atomic_write_bytes
 
 SCENE_VERSION = 3
 LIGHT_DIRECTION = np.array([0.35, 0.55, 0.75])  # in head space, towards the light
@@ -38,77 +43,6 @@ HELD_OUT_SEQUENCE = "mix"
 CROSS_SEQUENCE = "b_mix"
 HELD_OUT_CAMERA = 8
 LOOK_AT = np.array([0.0, -0.01, 0.0])
-
-
-@dataclasses.dataclass(frozen=True)
-class Sequence:
-    """A motion: FLAME parameters per frame (T, ...) for one identity, and its split."""
-
-    name: str
-    identity: str
-    split: str  # "train", "self_reenactment" or "cross_identity"
-    expr: np.ndarray  # (T, E)
-    rotation: np.ndarray  # (T, 3)
-    neck: np.ndarray
-    jaw: np.ndarray
-    eyes: np.ndarray  # (T, 6)
-    translation: np.ndarray
-
-    @property
-    def num_frames(self) -> int:
-        return self.expr.shape[0]
-
-    def params(self, shape: np.ndarray, frame: int) -> flame.FlameParams:
-        """FlameParams of one frame with the given identity shape coefficients."""
-        import jax.numpy as jnp
-
-        f = jnp.float32
-        return flame.FlameParams(
-            shape=jnp.asarray(shape, f), expr=jnp.asarray(self.expr[frame], f),
-            rotation=jnp.asarray(self.rotation[frame], f), neck=jnp.asarray(self.neck[frame], f),
-            jaw=jnp.asarray(self.jaw[frame], f), eyes=jnp.asarray(self.eyes[frame], f),
-            translation=jnp.asarray(self.translation[frame], f))
-
-
-@dataclasses.dataclass(frozen=True)
-class Scene:
-    """Cameras, identities, sequences and ground truth of the synthetic scene.
-
-    Attributes:
-      intrinsics: (C, 4) fx, fy, cx, cy; w2c: (C, 4, 4); width, height: image size.
-      train_cameras, held_out_cameras: camera indices.
-      shapes: identity name -> (S,) shape coefficients.
-      vertex_colors: identity name -> (V, 3) shaded albedo in head space.
-      sequences: name -> Sequence.
-      images: sequence name -> (C, T, H, W, 3) uint8 ground truth.
-      regions: sequence name -> (C, T, H, W) int8 region labels (-1 background).
-      background: (3,) background colour.
-    """
-
-    intrinsics: np.ndarray
-    w2c: np.ndarray
-    width: int
-    height: int
-    train_cameras: tuple
-    held_out_cameras: tuple
-    shapes: dict
-    vertex_colors: dict
-    sequences: dict
-    images: dict
-    regions: dict
-    background: np.ndarray
-
-    @property
-    def num_cameras(self) -> int:
-        return self.intrinsics.shape[0]
-
-    def camera(self, index: int) -> Camera:
-        """The index-th camera as a `Camera` pytree."""
-        import jax.numpy as jnp
-
-        return Camera(intrinsics=jnp.asarray(self.intrinsics[index], jnp.float32),
-                      w2c=jnp.asarray(self.w2c[index], jnp.float32), width=self.width,
-                      height=self.height)
 
 
 def camera_rig(num_cameras: int, size: int, distance: float = 0.6, fov_degrees: float = 26.0,
@@ -274,8 +208,8 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
     sequences = make_sequences(frames_per_sequence, model.num_expr)
     intrinsics, w2c = camera_rig(num_cameras, size)
     shapes = {"A": np.zeros(model.num_shape), "B": np.asarray(head.identity(**IDENTITY_B_SHAPE))}
-    colours = {"A": shaded_colors(model, assets.vertex_colors, shapes["A"]),
-               "B": shaded_colors(model, identity_albedo(assets, IDENTITY_B_ALBEDO), shapes["B"])}
+    albedos = {"A": assets.vertex_colors, "B": identity_albedo(assets, IDENTITY_B_ALBEDO)}
+    colours = {k: shaded_colors(model, albedos[k], shapes[k]) for k in albedos}
     bg = np.ones(3) if background == "white" else np.zeros(3)
     held_out = (HELD_OUT_CAMERA % num_cameras,)
     train = tuple(i for i in range(num_cameras) if i not in held_out)
@@ -299,10 +233,12 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
             regions[name] = np.stack([f[1] for f in per_frame], axis=1)
         bar.close()
         _save_cache(path, images, regions)
-    return Scene(intrinsics=intrinsics.astype(np.float32), w2c=w2c.astype(np.float32),
+    return Scene(model=model, face_regions=assets.face_regions,
+                 intrinsics=intrinsics.astype(np.float32), w2c=w2c.astype(np.float32),
                  width=size, height=size, train_cameras=train, held_out_cameras=held_out,
                  shapes=shapes, vertex_colors=colours, sequences=sequences, images=images,
-                 regions=regions, background=bg.astype(np.float32))
+                 regions=regions, background=bg.astype(np.float32), kind="synthetic",
+                 albedo=albedos, supersample=supersample)
 
 
 def scene_fingerprint(scene: Scene) -> str:
@@ -323,8 +259,6 @@ def _progress(total, desc, enabled):
 
 
 def _save_cache(path, images, regions):
-    from gae_jax.util.fileio import atomic_write_bytes
-
     buf = io.BytesIO()
     arrays = {f"images/{k}": v for k, v in images.items()}
     arrays.update({f"regions/{k}": v for k, v in regions.items()})

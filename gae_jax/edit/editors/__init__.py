@@ -15,16 +15,9 @@ result is a float32 numpy image of the same size.
 
 from __future__ import annotations
 
-from typing import Protocol
-
-import numpy as np
+from gae_jax.edit.editors.base import Editor, as_image  # noqa: F401 (the package API)
 
 EDITORS = ("semantic", "style", "ip2p")
-
-
-class Editor(Protocol):
-    def edit(self, render, original, prompt: str, key, context: dict | None = None) -> np.ndarray:
-        ...
 
 
 def make_editor(name: str, **options) -> Editor:
@@ -42,13 +35,3 @@ def make_editor(name: str, **options) -> Editor:
 
         return InstructPix2PixEditor(**options)
     raise ValueError(f"unknown editor {name!r}; choose one of {EDITORS}")
-
-
-def as_image(x, name: str = "image") -> np.ndarray:
-    """(H, W, 3) float32 numpy copy of an image in [0, 1]; clear errors on bad input."""
-    a = np.asarray(x, np.float32)
-    if a.ndim != 3 or a.shape[-1] != 3:
-        raise ValueError(f"{name} must be (H, W, 3), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} has non-finite values")
-    return np.clip(a, 0.0, 1.0)

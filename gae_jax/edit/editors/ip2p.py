@@ -20,7 +20,7 @@ import os
 import jax
 import numpy as np
 
-from gae_jax.edit.editors import as_image
+from gae_jax.edit.editors.base import as_image
 
 _PIPELINES: dict = {}  # folder -> loaded pipeline (loading is the slow part)
 

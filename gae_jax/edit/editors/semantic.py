@@ -1,8 +1,7 @@
 """The built-in semantic editor: recolour or pattern named regions of a render.
 
-Vocabulary (case-insensitive, any wording around it): a region word, a colour word and optionally
-"stripes" -- "turn the lips blue", "make the hair white", "paint the skin green", "give her red
-eyes", "add green stripes to the skin". `parse` raises an error listing the vocabulary otherwise.
+The instruction is read by `instructions.parse` (a region word, a colour word and optionally
+"stripes": "turn the lips blue", "add green stripes to the skin").
 
 The 2D edit keeps the shading and changes the albedo: a pixel of the region becomes
 colour x luminance(original pixel) / luminance(region albedo), the shading read from the
@@ -22,92 +21,22 @@ is never corrected; see the README's ablation and stability findings.
 colour jitter, a mask grown or shrunk by up to 2 px, a shift by up to 2 px, an occasional partial
 edit (a random half of the region, probability 0.25 noise), and a global tone change.
 
-`ideal_albedo` applies the same instruction without noise to the mesh's vertex albedo: its
-ray-cast render (`data.render_frame`) is the ground truth of the edit.
+`instructions.ideal_albedo` applies the same instruction without noise to the mesh's vertex
+albedo: its ray-cast render (`evaluation.truth`) is the ground truth of the edit.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import re
 
 import jax
 import numpy as np
 
+from gae_jax.edit.editors.base import as_image
+from gae_jax.instructions import parse, stripe_on
 from gae_jax.model import head
-from gae_jax.edit.editors import as_image
 
-REGION_WORDS = {
-    "lips": ("lips", "lip"),
-    "hair": ("hair",),
-    "skin": ("skin", "face"),
-    "iris": ("eyes", "eye", "iris", "irises"),
-    "brows": ("eyebrows", "eyebrow", "brows"),
-    "teeth": ("teeth",),
-}
-COLOURS = {
-    "blue": (0.12, 0.28, 0.85), "red": (0.85, 0.10, 0.10), "green": (0.15, 0.70, 0.20),
-    "white": (0.95, 0.95, 0.95), "black": (0.05, 0.05, 0.05), "yellow": (0.95, 0.85, 0.15),
-    "purple": (0.55, 0.20, 0.70), "pink": (0.95, 0.50, 0.70), "orange": (0.95, 0.50, 0.10),
-    "gold": (0.85, 0.68, 0.20), "silver": (0.75, 0.75, 0.78),
-}
-PATTERN_WORDS = ("stripes", "striped", "stripe")
-STRIPE_PERIOD = 0.02  # head-space metres along y (about ten stripes over the head)
 LUMA = np.array([0.299, 0.587, 0.114], np.float32)
-
-
-@dataclasses.dataclass(frozen=True)
-class Instruction:
-    region: str  # a key of REGION_WORDS (a `head.REGIONS` name)
-    colour: tuple
-    stripes: bool = False
-
-
-def vocabulary() -> str:
-    regions = ", ".join(w for words in REGION_WORDS.values() for w in words)
-    return (f"regions: {regions}; colours: {', '.join(COLOURS)}; pattern: stripes. Examples: "
-            "'turn the lips blue', 'make the hair white', 'give her red eyes', "
-            "'add green stripes to the skin'")
-
-
-def parse(prompt: str) -> Instruction:
-    """The instruction in `prompt`; ValueError (with the vocabulary) when it is not understood."""
-    words = re.findall(r"[a-z]+", prompt.lower())
-    region = next((r for w in words for r, names in REGION_WORDS.items() if w in names), None)
-    colour = next((COLOURS[w] for w in words if w in COLOURS), None)
-    if region is None or colour is None:
-        missing = "a region" if region is None else "a colour"
-        raise ValueError(f"the semantic editor does not understand {prompt!r} (no {missing} it "
-                         f"knows). It understands {vocabulary()}")
-    return Instruction(region, colour, any(w in PATTERN_WORDS for w in words))
-
-
-def stripe_on(y: np.ndarray) -> np.ndarray:
-    """Where the stripes' colour goes, by head-space height y."""
-    return np.sin(2 * np.pi * np.asarray(y) / STRIPE_PERIOD) > 0
-
-
-def region_vertices(faces: np.ndarray, face_regions: np.ndarray, region: str,
-                    num_vertices: int) -> np.ndarray:
-    """(V,) bool: vertices at least half of whose faces belong to `region` (none if unused)."""
-    faces = np.asarray(faces)
-    num = num_vertices
-    inside = np.repeat(np.asarray(face_regions) == head.REGION_ID[region], 3)
-    hits = np.bincount(faces.ravel(), weights=inside, minlength=num)
-    total = np.bincount(faces.ravel(), minlength=num)
-    return (total > 0) & (hits >= 0.5 * total)
-
-
-def ideal_albedo(instruction: Instruction, albedo: np.ndarray, faces, face_regions,
-                 rest_vertices) -> np.ndarray:
-    """(V, 3) vertex albedo with the instruction applied exactly (the ground-truth edit)."""
-    albedo = np.asarray(albedo, np.float64).copy()
-    mask = region_vertices(faces, face_regions, instruction.region, len(albedo))
-    if instruction.stripes:
-        mask &= stripe_on(np.asarray(rest_vertices)[:, 1])
-    albedo[mask] = instruction.colour
-    return albedo
-
 
 KEEPS = ("render", "original")
 

@@ -11,26 +11,8 @@ import dataclasses
 import jax
 import numpy as np
 
-from gae_jax.edit.editors import as_image
-
-STYLE_WORDS = {
-    "oil": ("oil",),
-    "sketch": ("pencil", "sketch", "drawing"),
-    "cartoon": ("cartoon", "comic", "toon"),
-    "stylise": ("stylise", "stylize", "stylised", "stylized", "watercolour", "watercolor",
-                "painting", "painted"),
-}
-
-
-def parse(prompt: str) -> str:
-    """The style named in the prompt; ValueError listing the known ones otherwise."""
-    text = prompt.lower()
-    for style, words in STYLE_WORDS.items():
-        if any(w in text for w in words):
-            return style
-    known = "; ".join(f"{s}: {', '.join(w)}" for s, w in STYLE_WORDS.items())
-    raise ValueError(f"the style editor does not understand {prompt!r}. It knows: {known}")
-
+from gae_jax.edit.editors.base import as_image
+from gae_jax.instructions import parse_style
 
 @dataclasses.dataclass(frozen=True)
 class StyleEditor:
@@ -45,7 +27,7 @@ class StyleEditor:
     def edit(self, render, original, prompt: str, key, context: dict | None = None):
         import cv2
 
-        style = parse(prompt)
+        style = parse_style(prompt)
         image = as_image(render, "render")
         u = 0.5 + self.jitter * (np.asarray(jax.random.uniform(key, (6,))) - 0.5)
         bgr = (image[..., ::-1] * 255 + 0.5).astype(np.uint8)

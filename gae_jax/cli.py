@@ -1,0 +1,62 @@
+"""Command-line flags generated from the config dataclasses, for every entry point.
+
+Each config field becomes `--field-name` with the field's type and a help text from the entry
+point's HELP table (a test checks that every field has one), so a flag and a field never
+disagree. Errors a user can cause (a bad value, a missing or malformed file) end as one line on
+stderr and exit code 2 (`main_guard`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from typing import Callable
+
+from gae_jax.model.flame_io import FlameFileError
+from gae_jax.util.fileio import PlyError
+
+USER_ERRORS = (ValueError, FileNotFoundError, NotADirectoryError, FileExistsError,
+               FlameFileError, PlyError)
+TYPES = {"int": int, "float": float, "str": str, "Optional[int]": int}
+
+
+def parse_bool(text: str) -> bool:
+    if text.lower() in ("true", "1", "yes", "on"):
+        return True
+    if text.lower() in ("false", "0", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+
+
+def add_config_flags(parser: argparse.ArgumentParser, cls, help: dict, title: str) -> None:
+    """Adds `--field-name` for every field of dataclass `cls` (default None: not given)."""
+    missing = {f.name for f in dataclasses.fields(cls)} - set(help)
+    if missing:
+        raise KeyError(f"no help text for {cls.__name__} fields {sorted(missing)}")
+    group = parser.add_argument_group(title)
+    for field in dataclasses.fields(cls):
+        flag = "--" + field.name.replace("_", "-")
+        default = field.default if field.default is not dataclasses.MISSING else None
+        text = f"{help[field.name]} (default: {default!r})"
+        if str(field.type) in ("bool", "<class 'bool'>"):
+            group.add_argument(flag, type=parse_bool, default=None, metavar="{true,false}",
+                               help=text)
+        else:
+            group.add_argument(flag, type=TYPES[str(field.type)], default=None, help=text)
+
+
+def given(args: argparse.Namespace, cls) -> dict:
+    """The fields of `cls` that were given on the command line."""
+    return {f.name: getattr(args, f.name) for f in dataclasses.fields(cls)
+            if getattr(args, f.name) is not None}
+
+
+def main_guard(run: Callable[[], int]) -> int:
+    """Runs an entry point's body; a user error becomes `error: ...` on stderr and exit 2."""
+    try:
+        return run()
+    except USER_ERRORS as e:
+        message = str(e) if not isinstance(e, KeyError) else e.args[0]
+        print(f"error: {message}", file=sys.stderr)
+        return 2

@@ -1,0 +1,127 @@
+"""The render-edit-aggregate loop over views and time.
+
+`setup(config, scene, original)` puts the scene and the original avatar on the device (one
+`Rig`), and builds the jitted step and the preview; `edit_avatar(session, ...)` runs the loop:
+each iteration samples `batch` (training camera, training frame) pairs, renders the current
+avatar there (with the region labels the semantic editor reads), edits each render outside jit,
+takes the edit of an adjacent frame of the same view (from the edit cache, or made fresh), and
+runs one jitted step. Checkpoints are atomic; `resume=True` reproduces an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gae_jax import loop
+from gae_jax.edit.config import EditConfig, StepConfig
+from gae_jax.edit.sampler import EditSampler, data_mesh, put_batch, replicate
+from gae_jax.edit.step import EditState, initial_state, make_edit_step, make_preview
+from gae_jax.model import avatar as av
+from gae_jax.scene import rig as rigs
+from gae_jax.scene.types import Scene, posed_vertices, training_frames
+
+CHECKPOINT = "edit_checkpoint.npz"
+
+
+@dataclasses.dataclass
+class Session:
+    """What `setup` builds: scene, original avatar, device rig, step functions."""
+
+    config: EditConfig
+    step_config: StepConfig
+    scene: Scene
+    original: av.Avatar
+    rig: rigs.Rig
+    pairs: list
+    canonical: jax.Array
+    step: object
+    preview: object
+
+
+def setup(config: EditConfig, scene: Scene, original: av.Avatar, step=None,
+          preview=None) -> Session:
+    """Device data and jitted functions of an edit (pass `step` / `preview` to reuse compiled
+    ones of the same StepConfig)."""
+    pairs = training_frames(scene)
+    rig = rigs.put_rig(scene, original, posed_vertices(scene, pairs))
+    step_config = StepConfig.of(config)
+    canonical = av.deform(original, scene.model.v_template, scene.model.faces).means
+    return Session(config, step_config, scene, original, rig, pairs, canonical,
+                   step or make_edit_step(step_config), preview or make_preview(step_config.blend))
+
+
+def make_sampler(session: Session) -> EditSampler:
+    s = session
+    return EditSampler(s.config, s.scene, s.pairs, s.preview, s.rig, s.canonical)
+
+
+def fresh_state(session: Session) -> EditState:
+    size = (session.rig.height, session.rig.width)
+    return initial_state(session.step_config, session.original.trainable(), size,
+                         jax.random.PRNGKey(session.config.seed + 1))
+
+
+def _save(path, state, sampler: EditSampler, history, config):
+    arrays = {}
+    for store, name in ((sampler.cache, "cache"), (sampler.dataset, "dataset")):
+        keys = sorted(store)
+        arrays[f"{name}/keys"] = np.asarray(keys, np.int64).reshape(-1, 2)
+        if keys:
+            arrays[f"{name}/images"] = np.stack([store[k] for k in keys])
+    loop.save_checkpoint(path, dict(state=state), arrays, config, history=history)
+
+
+def _load(path, template, sampler: EditSampler, config):
+    trees, arrays, meta = loop.load_checkpoint(path, dict(state=template), config)
+    for store, name in ((sampler.cache, "cache"), (sampler.dataset, "dataset")):
+        keys = arrays[f"{name}/keys"]
+        if len(keys):
+            images = arrays[f"{name}/images"]
+            store.update({(int(a), int(b)): images[j] for j, (a, b) in enumerate(keys)})
+    return trees["state"], meta["history"]
+
+
+def edit_avatar(session: Session, out_dir: Optional[str] = None, resume: bool = False,
+                progress: bool = False, stop_after: Optional[int] = None,
+                progress_fn=None):
+    """Runs the loop; returns (edited Avatar, history). Checkpoints into `out_dir`.
+
+    `stop_after` ends the run early (as an interruption would) after that many iterations.
+    With `batch` > 1 and several devices, the batch is split over a ("data",) mesh and the
+    state and rig are replicated.
+    """
+    config = session.config
+    state = fresh_state(session)
+    sampler = make_sampler(session)
+    history: list = []
+    path = os.path.join(out_dir, CHECKPOINT) if out_dir else None
+    if resume and path and os.path.isfile(path):
+        state, history = _load(path, state, sampler, config)
+    mesh = data_mesh(config.batch)
+    state, rig = replicate(state, mesh), replicate(session.rig, mesh)
+    sampler.rig, sampler.canonical = rig, replicate(session.canonical, mesh)
+    key = jax.random.PRNGKey(config.seed)
+    start = int(state.step)
+    recorder = loop.Recorder("edit", config.iterations, start, history, progress, progress_fn,
+                             postfix=lambda h: dict(recon=f"{h['recon']:.3f}",
+                                                    d=f"{h['d_loss']:.3f}",
+                                                    psnr=f"{h['psnr_to_edit']:.1f}"))
+    for i in range(start, config.iterations):
+        batch = put_batch(sampler.batch(state.params, i, key), mesh)
+        state, metrics = session.step(state, rig, batch)
+        recorder.push(i + 1, metrics)
+        done = i + 1
+        if path and config.checkpoint_every and done % config.checkpoint_every == 0:
+            recorder.flush()
+            _save(path, state, sampler, recorder.history, config)
+        if stop_after is not None and done >= stop_after:
+            break
+    history = recorder.close()
+    params = jax.tree_util.tree_map(jnp.asarray, jax.device_get(state.params))
+    return session.original.with_params(params), history

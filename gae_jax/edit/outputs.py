@@ -1,0 +1,113 @@
+"""What an edit run leaves for people and tools: a labelled grid, a reenactment video, and the
+avatars as GaussianAvatars folders (plus a posed 3DGS `.ply` that splat viewers open).
+
+Grid columns: the untouched avatar, the editor's 2D edit of that render (what the loop learns
+from), ours (the edited avatar), and the truth (the ideal edit on the synthetic scene, the
+capture on a user's data); rows: frames x cameras of the self-reenactment protocol (the
+training frames when the scene has none).
+"""
+
+from __future__ import annotations
+
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gae_jax.edit.edit import Session, make_sampler
+from gae_jax.evaluation import protocols, truth
+from gae_jax.model import avatar as av
+from gae_jax.model import avatar_io
+from gae_jax.scene import rig as rigs
+from gae_jax.scene.types import posed_vertices, stacked_params
+from gae_jax.util.fileio import atomic_write_bytes, encode_png
+
+
+def to_uint8(x) -> np.ndarray:
+    return (np.clip(np.asarray(x, np.float64), 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def _label(width: int, text: str) -> np.ndarray:
+    import cv2
+
+    strip = np.full((14, width, 3), 255, np.uint8)
+    cv2.putText(strip, text, (3, 10), cv2.FONT_HERSHEY_SIMPLEX, 0.33, (0, 0, 0), 1,
+                cv2.LINE_AA)
+    return strip
+
+
+def write_grid(session: Session, edited: av.Avatar, path: str, key) -> None:
+    """PNG grid (see the module docstring), with a header naming the columns."""
+    s = session
+    name = ("self_reenactment" if "self_reenactment" in protocols.available(s.scene)
+            else "novel_view" if "novel_view" in protocols.available(s.scene) else None)
+    if name is None:
+        protocol = protocols.ProtocolFrames("train", s.pairs[:3], tuple(s.scene.train_cameras[:2]))
+    else:
+        protocol = protocols.protocol_frames(s.scene, name, frames=3, cameras=2)
+    _, albedo = truth.ideal_albedo(s.scene, s.config.prompt) if s.scene.kind == "synthetic" \
+        else (None, None)
+    reference = truth.frames_truth(s.scene, protocol, albedo)
+    rig = rigs.with_vertices(s.rig, reference.vertices)
+    render = rigs.make_view_renderer(s.step_config.blend)
+    original = rigs.render_views(render, s.original.trainable(), rig, protocol.cameras)
+    ours = rigs.render_views(render, edited.trainable(), rig, protocol.cameras)
+    sampler = make_sampler(s)
+    rows = []
+    for p, (seq, t) in enumerate(protocol.pairs):
+        for k, cam in enumerate(protocol.cameras):
+            _, regions, coords = s.preview(s.original.trainable(), rig, jnp.int32(cam),
+                                           jnp.int32(p), s.canonical)
+            edit = sampler.editor.edit(original[p, k], original[p, k], s.config.prompt,
+                                       jax.random.fold_in(key, p * 97 + k),
+                                       dict(regions=np.asarray(regions),
+                                            canonical=np.asarray(coords)))
+            rows.append(np.concatenate([to_uint8(original[p, k]), to_uint8(edit),
+                                        to_uint8(ours[p, k]), reference.truth[p, k]], axis=1))
+    width = rows[0].shape[1] // 4
+    kind = "ideal edit" if s.scene.kind == "synthetic" else "capture"
+    header = np.concatenate([_label(width, t) for t in ("original", "2D edit", "ours", kind)],
+                            axis=1)
+    atomic_write_bytes(path, encode_png(np.concatenate([header] + rows, axis=0)))
+
+
+def write_video(session: Session, edited: av.Avatar, path: str, fps: int = 8) -> None:
+    """MP4 from the held-out camera (a training camera when none is held out): the held-out and
+    cross-identity sequences (the training ones when the scene has neither); each frame is ours |
+    original avatar side by side."""
+    import imageio.v2 as imageio
+
+    s = session
+    cam = (s.scene.held_out_cameras or s.scene.train_cameras)[0]
+    names = (s.scene.sequences_of("self_reenactment") + s.scene.sequences_of("cross_identity")
+             or s.scene.sequences_of("train"))
+    render = rigs.make_view_renderer(s.step_config.blend)
+    frames = []
+    for seq in names:
+        pairs = [(seq, t) for t in range(s.scene.sequences[seq].num_frames)]
+        rig = rigs.with_vertices(s.rig, posed_vertices(s.scene, pairs, identity="A"))
+        ours = rigs.render_views(render, edited.trainable(), rig, [cam])[:, 0]
+        before = rigs.render_views(render, s.original.trainable(), rig, [cam])[:, 0]
+        frames += [np.concatenate([to_uint8(a), to_uint8(b)], axis=1)
+                   for a, b in zip(ours, before)]
+    tmp = path + ".tmp.mp4"
+    with imageio.get_writer(tmp, fps=fps, codec="libx264", macro_block_size=1,
+                            ffmpeg_log_level="error") as writer:
+        for f in frames:
+            writer.append_data(f)
+    os.replace(tmp, path)
+
+
+def write_avatar_files(session: Session, edited: av.Avatar, out_dir: str) -> None:
+    """`edited_avatar/` and `original_avatar/` (GaussianAvatars folders with the held-out or
+    training motion) and `edited_posed.ply` (world space, first frame of that motion)."""
+    s = session
+    names = s.scene.sequences_of("self_reenactment") or s.scene.sequences_of("train")
+    motion = stacked_params(s.scene, names)
+    for folder, avatar in (("edited_avatar", edited), ("original_avatar", s.original)):
+        avatar_io.save_avatar_folder(os.path.join(out_dir, folder), avatar, s.scene.shapes["A"],
+                                     motion)
+    verts = posed_vertices(s.scene, [(names[0], 0)])[0]
+    avatar_io.save_posed_ply(av.deform(edited, jnp.asarray(verts), s.scene.model.faces),
+                             os.path.join(out_dir, "edited_posed.ply"))

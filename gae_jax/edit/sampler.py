@@ -1,0 +1,118 @@
+"""The host side of the edit loop: which (camera, frame) to edit next, the 2D editor calls, the
+edit cache, Instruct-NeRF2NeRF's dataset, and placing a batch on the devices.
+
+Edits are quantised to 8 bits (an editor's output image), so checkpoints hold them exactly and
+a resumed run reproduces an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from gae_jax.edit.config import EditConfig
+from gae_jax.edit.editors import make_editor
+
+
+def frame_table(scene, pairs):
+    """For each (sequence, frame) pair, the rows of its neighbours in time among `pairs`."""
+    index = {p: i for i, p in enumerate(pairs)}
+    neighbours = []
+    for name, t in pairs:
+        n = scene.sequences[name].num_frames
+        neighbours.append([index[(name, k)] for k in (t - 1, t + 1) if (name, k) in index
+                           and 0 <= k < n])
+    return neighbours
+
+
+def data_mesh(batch: int):
+    """A ("data",) mesh over the devices when the batch splits evenly over more than one, else
+    None (single device)."""
+    devices = jax.devices()
+    if batch < 2 or len(devices) < 2:
+        return None
+    count = max(d for d in range(1, len(devices) + 1) if batch % d == 0)
+    return Mesh(np.asarray(devices[:count]), ("data",)) if count > 1 else None
+
+
+def put_batch(batch: dict, mesh) -> dict:
+    """Host batch -> device arrays; with a mesh, the batch axis is split over its "data" axis."""
+    if mesh is None:
+        return {k: jnp.asarray(v) for k, v in batch.items()}
+    sharding = NamedSharding(mesh, PartitionSpec("data"))
+    return {k: jax.device_put(np.asarray(v), sharding) for k, v in batch.items()}
+
+
+def replicate(tree, mesh):
+    """Puts a pytree on every device of the mesh (no-op without one)."""
+    if mesh is None:
+        return tree
+    return jax.device_put(tree, NamedSharding(mesh, PartitionSpec()))
+
+
+class EditSampler:
+    """Samples (camera, frame) pairs and produces their 2D edits.
+
+    Args:
+      config: the edit's settings (editor, batch, prompt, ...).
+      scene: the scene (training images: the original the editor is conditioned on).
+      pairs: the training (sequence, frame) pairs, in rig frame order.
+      preview: `step.make_preview(...)` function; rig and canonical (N, 3) for it.
+    """
+
+    def __init__(self, config: EditConfig, scene, pairs, preview, rig, canonical):
+        options = {"semantic": dict(noise=config.editor_noise, keeps=config.editor_keeps),
+                   "ip2p": dict(folder=config.ip2p_folder)}.get(config.editor, {})
+        self.config, self.scene, self.pairs = config, scene, pairs
+        self.preview, self.rig, self.canonical = preview, rig, canonical
+        self.neighbours = frame_table(scene, pairs)
+        self.editor = make_editor(config.editor, **options)
+        self.cache: dict = {}  # (cam, row) -> uint8 edit
+        self.dataset: dict = {}  # in2n: (cam, row) -> uint8 edited dataset image
+        self.spots = [(int(cam), row) for row in range(len(pairs))
+                      for cam in scene.train_cameras]
+
+    def original_image(self, cam, row):
+        name, t = self.pairs[row]
+        return self.scene.images[name][cam, t]
+
+    def edit(self, params, cam, row, key):
+        image, regions, coords = self.preview(params, self.rig, jnp.int32(cam), jnp.int32(row),
+                                              self.canonical)
+        edited = self.editor.edit(np.asarray(image), self.original_image(cam, row) / 255.0,
+                                  self.config.prompt, key,
+                                  dict(regions=np.asarray(regions), canonical=np.asarray(coords)))
+        edited = (np.clip(edited, 0, 1) * 255 + 0.5).astype(np.uint8)
+        self.cache[(cam, row)] = edited
+        return edited
+
+    def batch(self, params, i: int, key) -> dict:
+        """The i-th batch as host arrays: samples, fresh edits (or in2n's dataset), neighbours."""
+        c = self.config
+        k_sample, k_edit = jax.random.split(jax.random.fold_in(key, i))
+        cams = np.asarray(self.scene.train_cameras)[np.asarray(jax.random.randint(
+            k_sample, (c.batch,), 0, len(self.scene.train_cameras)))]
+        rows = np.asarray(jax.random.randint(jax.random.fold_in(k_sample, 1), (c.batch,), 0,
+                                             len(self.pairs)))
+        edit_keys = jax.random.split(k_edit, 2 * c.batch + 1)
+        targets, neighbours = [], []
+        if c.dataset_update:  # IN2N: refresh one dataset image per iteration, in order
+            spot = self.spots[i % len(self.spots)]
+            self.dataset[spot] = self.edit(params, *spot, edit_keys[-1])
+        for b, (cam, row) in enumerate(zip(cams.tolist(), rows.tolist())):
+            if c.dataset_update:
+                target = self.dataset.get((cam, row), self.original_image(cam, row))
+            else:
+                target = self.edit(params, cam, row, edit_keys[b])
+            options = self.neighbours[row] or [row]
+            k_row = options[int(jax.random.randint(edit_keys[c.batch + b], (), 0, len(options)))]
+            neighbour = self.cache.get((cam, k_row))
+            if neighbour is None and c.adversarial:
+                neighbour = self.edit(params, cam, k_row, jax.random.fold_in(edit_keys[b], 7))
+            targets.append(target)
+            neighbours.append(neighbour if neighbour is not None else target)
+        return dict(cams=cams.astype(np.int32), frames=rows.astype(np.int32),
+                    target=np.stack(targets).astype(np.float32) / 255.0,
+                    neighbour=np.stack(neighbours).astype(np.float32) / 255.0)

@@ -1,0 +1,156 @@
+"""The jitted edit step and the preview render the 2D editor sees.
+
+One step: render the batch of (camera, frame) samples through the rig (traced once: its VJP
+serves the avatar update after the discriminator has moved), update the discriminator on
+(real, fake) pairs, then the avatar on lambda_1 (L1 + 1 - SSIM) + lambda_3 L_G + lambda_4 L_const.
+The batch axis is `vmap`ped; shard it over devices (`sampler.put_batch`) to run data-parallel.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from gae_jax.edit import gan
+from gae_jax.edit.config import StepConfig
+from gae_jax.model import head
+from gae_jax.model.avatar import TRAINABLE
+from gae_jax.render import losses, wabe
+from gae_jax.scene.rig import Rig, render_bound
+from gae_jax.util.compile import fast_jit
+
+MOUTH_REGIONS = ("teeth", "mouth")  # excluded from the released code's gradient mask
+CODE_MASK_CONTRIBUTORS = 10
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class EditState:
+    """Avatar params and optimiser state, discriminator params and optimiser state, step."""
+
+    params: dict
+    opt_state: optax.OptState
+    d_params: dict
+    d_opt_state: optax.OptState
+    step: jax.Array
+
+
+def avatar_optimizer(config: StepConfig) -> optax.GradientTransformation:
+    """Adam at `lr` for colours, `lr_geometry` for opacities, scales and rotations, `lr_means`
+    for local positions (the paper: 1e-2 for everything)."""
+    rates = {k: config.lr_geometry for k in TRAINABLE}
+    rates.update(colors=config.lr, means=config.lr_means)
+    return optax.partition({k: optax.adam(v, eps=config.adam_eps) for k, v in rates.items()},
+                           {k: k for k in TRAINABLE})
+
+
+def discriminator_optimizer(config: StepConfig) -> optax.GradientTransformation:
+    return optax.adam(config.d_lr, b1=0.5)
+
+
+def initial_state(config: StepConfig, params: dict, image_size: tuple, key) -> EditState:
+    """A fresh state: `params` copied (the step donates its state), a new discriminator for
+    (H, W) images from `key`."""
+    params = jax.tree_util.tree_map(jnp.array, params)
+    d_params = gan.Discriminator().init(key, jnp.zeros((1,) + tuple(image_size) + (6,)))
+    return EditState(params, avatar_optimizer(config).init(params), d_params,
+                     discriminator_optimizer(config).init(d_params), jnp.int32(0))
+
+
+def make_edit_step(config: StepConfig):
+    """A jitted `step(state, rig, batch) -> (state, metrics)`, state donated.
+
+    batch: cams (B,) int32, frames (B,) int32 (rows of rig.vertices), target (B, H, W, 3) float
+    (E_t), neighbour (B, H, W, 3) (E_k).
+    """
+    disc = gan.Discriminator()
+    opt, d_opt = avatar_optimizer(config), discriminator_optimizer(config)
+    mouth_ids = jnp.asarray([head.REGION_ID[r] for r in MOUTH_REGIONS])
+    front = CODE_MASK_CONTRIBUTORS if config.gradient_mask == "code" else 0
+
+    def render_one(params, rig, cam, frame):
+        out = render_bound(params, rig, frame, cam, blend=config.blend,
+                           visibility_contributors=front)
+        return out.image, (out.stats.radii > 0, out.stats.visibility)
+
+    def step(state: EditState, rig: Rig, batch: dict):
+        def render_batch(params):
+            return jax.vmap(render_one, in_axes=(None, None, 0, 0))(params, rig, batch["cams"],
+                                                                      batch["frames"])
+
+        images, pullback, (visible, visibility) = jax.vjp(render_batch, state.params,
+                                                          has_aux=True)
+        target, neighbour = batch["target"], batch["neighbour"]
+        d_params, d_opt_state = state.d_params, state.d_opt_state
+        d_value = jnp.float32(0.0)
+        if config.adversarial:
+            real, fake = gan.make_pairs(config.pair_mode, target, neighbour,
+                                        jax.lax.stop_gradient(images))
+
+            def d_objective(p):
+                return config.d_weight * gan.d_loss(disc.apply(p, real), disc.apply(p, fake))
+
+            d_value, d_grads = jax.value_and_grad(d_objective)(d_params)
+            with jax.numpy_dtype_promotion("standard"):
+                d_updates, d_opt_state = d_opt.update(d_grads, d_opt_state, d_params)
+            d_params = optax.apply_updates(d_params, d_updates)
+
+        def image_objective(imgs):
+            recon = jnp.mean(jax.vmap(lambda c, e: losses.l1(c, e) + 1 - losses.ssim(c, e))(
+                imgs, target))
+            adv = jnp.float32(0.0)
+            if config.adversarial:
+                _, fake = gan.make_pairs(config.pair_mode, target, neighbour, imgs)
+                adv = gan.g_loss(disc.apply(d_params, fake))
+            return config.recon_weight * recon + config.g_weight * adv, (recon, adv)
+
+        (_, (recon, adv)), d_images = jax.value_and_grad(image_objective, has_aux=True)(images)
+        (grads,) = pullback(d_images)
+        seen = jnp.any(visible, axis=0)
+
+        def const_objective(p):
+            return config.const_weight * (losses.position_regulariser(p["means"], seen)
+                                          + losses.scale_regulariser(p["log_scales"], seen))
+
+        const, const_grads = jax.value_and_grad(const_objective)(state.params)
+        grads = jax.tree_util.tree_map(jnp.add, grads, const_grads)
+        if config.gradient_mask == "code":
+            # The released code updates only Gaussians among a pixel's front contributors and
+            # never the mouth's; every attribute of the others is frozen alike.
+            keep = (jnp.max(visibility, axis=0) > 0) & ~jnp.isin(rig.regions, mouth_ids)
+            grads = {k: v * keep.reshape((-1,) + (1,) * (v.ndim - 1)).astype(v.dtype)
+                     for k, v in grads.items()}
+        with jax.numpy_dtype_promotion("standard"):
+            updates, opt_state = opt.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        if params["colors"].ndim == 2:  # plain RGB: keep it a colour (no compensating overshoot)
+            params = dict(params, colors=jnp.clip(params["colors"], 0.0, 1.0))
+        psnr = jnp.mean(jax.vmap(losses.psnr)(images, target))
+        metrics = dict(recon=recon, g_adv=adv, d_loss=d_value, const=const, psnr_to_edit=psnr)
+        return EditState(params, opt_state, d_params, d_opt_state, state.step + 1), metrics
+
+    return fast_jit(step, donate_argnums=0)
+
+
+def make_preview(blend: wabe.Blend):
+    """Jitted `preview(params, rig, cam, frame, canonical) -> (image (H, W, 3), regions (H, W)
+    int, -1 background, canonical (H, W, 3) head-space positions)` in one composite pass.
+
+    canonical: (N, 3) each Gaussian's head-space position (the rest pose)."""
+    num_regions = len(head.REGIONS)
+
+    @fast_jit
+    def preview(params, rig: Rig, cam, frame, canonical):
+        onehot = jax.nn.one_hot(rig.regions, num_regions, dtype=canonical.dtype)
+        out = render_bound(params, rig, frame, cam, blend=blend,
+                           extra_channels=jnp.concatenate([onehot, canonical], -1))
+        image = out.image[..., :3]
+        votes = out.image[..., 3:3 + num_regions]
+        regions = jnp.where(out.alpha > 0.5, jnp.argmax(votes, -1), -1)
+        coords = out.image[..., 3 + num_regions:] / jnp.maximum(out.alpha, 1e-6)[..., None]
+        return image, regions, coords
+
+    return preview

@@ -1,0 +1,84 @@
+"""Per-region image scores against a reference, and temporal flicker.
+
+Scores pool squared errors over all pixels of a region across frames and cameras before taking
+PSNR (a frame where a region is absent adds nothing): `whole`, the edited region, and each
+preserved group (`teeth`, `eyes` = sclera + iris + pupil, `mouth`, `rest` = the head's other
+regions; background pixels count only in `whole`).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gae_jax.evaluation import lpips
+from gae_jax.model import head
+from gae_jax.render import losses
+
+PRESERVED_GROUPS = {"teeth": ("teeth",), "eyes": ("sclera", "iris", "pupil"),
+                    "mouth": ("mouth",)}
+
+
+def region_masks(regions: np.ndarray, edited_region: str | None) -> dict:
+    """Boolean masks of `whole`, the edited region and the preserved groups."""
+    masks = {"whole": np.ones(regions.shape, bool)}
+    if edited_region is not None:
+        masks["edited"] = regions == head.REGION_ID[edited_region]
+    used = {edited_region}
+    for group, names in PRESERVED_GROUPS.items():
+        names = tuple(n for n in names if n != edited_region)
+        masks[group] = np.isin(regions, [head.REGION_ID[n] for n in names])
+        used |= set(names)
+    rest = [head.REGION_ID[n] for n in head.REGIONS if n not in used]
+    masks["rest"] = np.isin(regions, rest)  # the head's other regions; background is not "rest"
+    return masks
+
+
+def region_scores(predicted: np.ndarray, truth: np.ndarray, regions: np.ndarray,
+                  edited_region: str | None, perceptual: bool = True) -> dict:
+    """{metric: {mask: value}} over (..., H, W, 3) images in [0, 1] or uint8.
+
+    `psnr` pools squared errors over the mask's pixels of all images; `ssim` and `lpips` average
+    the per-pixel SSIM map (11x11 window, on the whole image) and LPIPS map over the mask's
+    pixels. A mask with no pixels gets None. `perceptual=False` skips LPIPS.
+    """
+    p = _float(predicted).reshape((-1,) + np.shape(predicted)[-3:])
+    t = _float(truth).reshape(p.shape)
+    masks = {k: m.reshape(p.shape[:-1]) for k, m in region_masks(regions, edited_region).items()}
+    ssim = np.asarray(_ssim_maps(jnp.asarray(p, jnp.float32), jnp.asarray(t, jnp.float32)))
+    maps = {"ssim": ssim.mean(-1)}
+    if perceptual:
+        maps["lpips"] = np.asarray(lpips.lpips_map(p, t))
+    out = {"psnr": {}, **{k: {} for k in maps}}
+    for name, mask in masks.items():
+        empty = not mask.any()
+        mse = float(np.mean((p[mask] - t[mask]) ** 2)) if not empty else None
+        out["psnr"][name] = None if empty else round(10 * np.log10(1.0 / max(mse, 1e-12)), 3)
+        for metric, m in maps.items():
+            out[metric][name] = None if empty else round(float(m[mask].mean()), 4)
+    return out
+
+
+@jax.jit
+def _ssim_maps(a, b):
+    return jax.vmap(losses.ssim_map)(a, b)
+
+
+def flicker(ours: np.ndarray, truth: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Temporal flicker of (T, H, W, 3) consecutive frames: the mean absolute difference between
+    our frame-to-frame change and the truth's, (ours_t+1 - ours_t) - (truth_t+1 - truth_t), in
+    [0, 1] units over pixels (of an optional (T, H, W) mask, taken where either frame has it)."""
+    o, t = _float(ours), _float(truth)
+    if o.shape != t.shape or o.ndim != 4 or len(o) < 2:
+        raise ValueError(f"flicker needs two (T >= 2, H, W, 3) clips, got {o.shape}, {t.shape}")
+    diff = np.abs(np.diff(o, axis=0) - np.diff(t, axis=0)).mean(-1)
+    if mask is None:
+        return float(diff.mean())
+    m = mask[1:] | mask[:-1]
+    return float(diff[m].mean()) if m.any() else float("nan")
+
+
+def _float(x):
+    x = np.asarray(x)
+    return x.astype(np.float64) / 255.0 if x.dtype == np.uint8 else x.astype(np.float64)

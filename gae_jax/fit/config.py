@@ -1,0 +1,81 @@
+"""Settings of the reconstruction (`ReconstructConfig`, every field a flag of
+`python -m gae_jax.reconstruct`) and the small hashable part the jitted step reads
+(`FitStepConfig`)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Optional
+
+@dataclasses.dataclass(frozen=True)
+class ReconstructConfig:
+    """Settings of `fit` (learning rates in GaussianAvatars' triangle-local units).
+
+    The Gaussian budget: `per_face` at the start, `max_gaussians` at most (0: no cap). Resolution
+    is the scene's. `tile_capacity` 0 sizes the per-tile lists from the initial avatar.
+    """
+
+    iterations: int = 400
+    per_face: int = 1
+    init_opacity: float = 0.9
+    init_scale: float = 0.3
+    normal_scale: float = 0.3
+    lr_means: float = 1e-2
+    lr_means_final: float = 1e-4
+    lr_quats: float = 1e-3
+    lr_scales: float = 1.7e-2
+    lr_opacity: float = 5e-2
+    lr_colors: float = 5e-3
+    dssim_weight: float = 0.2
+    position_weight: float = 0.01
+    scale_weight: float = 1.0
+    sh_degree: Optional[int] = None
+    sh_every: int = 500
+    densify_every: int = 0
+    densify_from: int = 200
+    densify_until: float = 0.6
+    grad_threshold: float = 2e-4
+    split_scale: float = 0.5
+    prune_opacity: float = 0.005
+    prune_unseen: bool = True
+    max_gaussians: int = 0
+    tile_capacity: int = 0
+    tiles_per_chunk: int = 8
+    checkpoint_every: int = 0
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.iterations < 1 or self.per_face < 1 or self.tile_capacity < 0:
+            raise ValueError("iterations and per_face must be >= 1, tile_capacity >= 0")
+        if not 0 < self.init_opacity < 1:
+            raise ValueError(f"init_opacity must be in (0, 1), got {self.init_opacity}")
+        if self.sh_degree is not None and not 0 <= self.sh_degree <= 3:
+            raise ValueError(f"sh_degree must be None or 0..3, got {self.sh_degree}")
+        if min(self.densify_every, self.checkpoint_every, self.max_gaussians) < 0:
+            raise ValueError("densify_every, checkpoint_every and max_gaussians must be >= 0")
+        if not 0 <= self.densify_until <= 1:
+            raise ValueError(f"densify_until is a fraction of the iterations, got "
+                             f"{self.densify_until}")
+
+
+@dataclasses.dataclass(frozen=True)
+class FitStepConfig:
+    """What the jitted fit step reads: losses, learning rates, the SH schedule (hashable)."""
+
+    iterations: int
+    lr_means: float
+    lr_means_final: float
+    lr_quats: float
+    lr_scales: float
+    lr_opacity: float
+    lr_colors: float
+    dssim_weight: float
+    position_weight: float
+    scale_weight: float
+    sh_degree: Optional[int]
+    sh_every: int
+    tiles_per_chunk: int
+
+    @classmethod
+    def of(cls, config: ReconstructConfig) -> "FitStepConfig":
+        return cls(**{f.name: getattr(config, f.name) for f in dataclasses.fields(cls)})

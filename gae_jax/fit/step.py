@@ -1,0 +1,110 @@
+"""The jitted fit step: sample a training (camera, frame), render through the rig, take
+GaussianAvatars' losses, one per-attribute Adam update, accumulate screen-space gradients.
+
+Losses: (1 - dssim_weight) L1 + dssim_weight D-SSIM, position regulariser (beyond 1 triangle
+scale) and scale regulariser (beyond 0.6), on the Gaussians visible in the view. The position
+rate decays exponentially to `lr_means_final` (as in 3DGS).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from gae_jax.fit.config import FitStepConfig
+from gae_jax.model.avatar import TRAINABLE
+from gae_jax.render import losses
+from gae_jax.scene.rig import Rig, render_bound
+from gae_jax.util.compile import fast_jit
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class FitState:
+    """What changes during the fit.
+
+    params: trainable arrays (N, ...); opt_state: optax state; key: PRNG key; step: () int32;
+    grad_sum: (N,) accumulated screen-space mean-gradient norms (NDC units); seen: (N,) in how
+    many steps each Gaussian contributed to a pixel since the last densification.
+    """
+
+    params: dict
+    opt_state: optax.OptState
+    key: jax.Array
+    step: jax.Array
+    grad_sum: jax.Array
+    seen: jax.Array
+
+
+def optimizer(config: FitStepConfig) -> optax.GradientTransformation:
+    """Per-attribute Adam; the position rate decays exponentially to `lr_means_final`."""
+    means = optax.exponential_decay(config.lr_means, config.iterations,
+                                    config.lr_means_final / config.lr_means)
+    rates = dict(means=means, quats=config.lr_quats, log_scales=config.lr_scales,
+                 opacity_logits=config.lr_opacity, colors=config.lr_colors)
+    return optax.partition({k: optax.adam(v, eps=1e-15) for k, v in rates.items()},
+                           {k: k for k in TRAINABLE})
+
+
+def initial_state(params: dict, config: FitStepConfig, key) -> FitState:
+    """A fresh state for `params` (copied: the step donates its state)."""
+    params = jax.tree_util.tree_map(jnp.array, params)
+    n = params["means"].shape[0]
+    return FitState(params, optimizer(config).init(params), key, jnp.int32(0),
+                    jnp.zeros((n,), jnp.float32), jnp.zeros((n,), jnp.int32))
+
+
+def sh_mask(colors_shape, degree) -> jax.Array:
+    """(K, 1) mask keeping the SH coefficients of bands <= degree (traced degree allowed)."""
+    bands = np.floor(np.sqrt(np.arange(colors_shape[1]))).astype(np.int32)
+    return (jnp.asarray(bands)[:, None] <= degree).astype(jnp.float32)
+
+
+def make_fit_step(config: FitStepConfig):
+    """A jitted `step(state, rig, images, cameras) -> (state, metrics)`, state donated.
+
+    rig: the avatar's `Rig` at the training frames; images: (C, T, H, W, 3) uint8 ground truth
+    of those frames; cameras: (K,) int32 cameras to sample from.
+    """
+    opt = optimizer(config)
+
+    def loss_fn(params, offset, rig, images, cam, frame, degree):
+        colors = params["colors"]
+        if colors.ndim == 3:
+            params = dict(params, colors=colors * sh_mask(colors.shape, degree))
+        out = render_bound(params, rig, frame, cam, screen_offset=offset,
+                           tiles_per_chunk=config.tiles_per_chunk)
+        target = images[cam, frame].astype(jnp.float32) / 255.0
+        photo = losses.photometric(out.image, target, config.dssim_weight)
+        visible = out.stats.radii > 0
+        reg = (config.position_weight * losses.position_regulariser(params["means"], visible)
+               + config.scale_weight * losses.scale_regulariser(params["log_scales"], visible))
+        return photo + reg, (out.stats.contributed, dict(
+            photometric=photo, psnr=losses.psnr(out.image, target),
+            overflow_tiles=out.stats.overflow_tiles))
+
+    def step(state: FitState, rig: Rig, images, cameras):
+        key, k_cam, k_frame = jax.random.split(state.key, 3)
+        cam = cameras[jax.random.randint(k_cam, (), 0, cameras.shape[0])]
+        frame = jax.random.randint(k_frame, (), 0, rig.vertices.shape[0])
+        degree = jnp.minimum(state.step // max(config.sh_every, 1), config.sh_degree or 0)
+        offset = jnp.zeros((rig.binding.shape[0], 2), jnp.float32)
+        (loss, (visible, aux)), (grads, offset_grad) = jax.value_and_grad(
+            loss_fn, argnums=(0, 1), has_aux=True)(state.params, offset, rig, images, cam,
+                                                   frame, degree)
+        # optax mixes int32 step counts with floats; keep working under strict promotion.
+        with jax.numpy_dtype_promotion("standard"):
+            updates, opt_state = opt.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        # 3DGS measures the mean gradient in NDC: d/d(ndc) = d/d(pixel) * size / 2.
+        screen_grad = jnp.linalg.norm(offset_grad, axis=-1) * (rig.width / 2)
+        new = FitState(params, opt_state, key, state.step + 1,
+                       state.grad_sum + jnp.where(visible, screen_grad, 0.0),
+                       state.seen + visible.astype(jnp.int32))
+        return new, dict(loss=loss, num_gaussians=jnp.int32(rig.binding.shape[0]), **aux)
+
+    return fast_jit(step, donate_argnums=0)

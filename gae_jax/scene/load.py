@@ -1,0 +1,77 @@
+"""Where a scene comes from: the embedded synthetic default, or a user's NeRSemble folder.
+
+`load_scene(SceneConfig(data, flame_model, flame_masks, size))` is what every entry point calls:
+with no `data` it builds (or reads from the cache) the embedded scene at `size` pixels; with a
+folder it reads it (`nersemble.load_scene`), posed by the FLAME file `flame_model` (a FLAME
+`.pkl` or our `.npz`) or, without one, by the embedded head. Region labels of a FLAME file's
+faces come from `flame_masks` (FLAME_masks.pkl) when given, else every face is skin.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import glob
+import os
+
+import numpy as np
+
+from gae_jax.model import flame_io, head
+from gae_jax.scene import nersemble, synthetic
+from gae_jax.scene.types import Scene
+
+
+def load_model(flame_model: str = "", flame_masks: str = "", data: str = ""):
+    """(FlameModel, (F,) face regions): the embedded head, or a FLAME file with as many shape /
+    expression components as the data's flame_param files hold."""
+    if not flame_model:
+        if flame_masks:
+            raise ValueError("--flame-masks needs --flame-model (the embedded head has its "
+                             "own regions)")
+        model, assets = head.make_head()
+        return model, assets.face_regions
+    n_shape, n_expr = 300, 100
+    params = sorted(glob.glob(os.path.join(data, "flame_param", "*.npz"))) if data else []
+    if params:
+        first = nersemble.load_flame_param(params[0])
+        n_shape, n_expr = first["shape"].size, first["expr"].shape[-1]
+    model = flame_io.load_flame(flame_model, n_shape=n_shape, n_expr=n_expr)
+    if flame_masks:
+        masks = flame_io.load_flame_masks(flame_masks)
+        regions = flame_io.face_regions_from_masks(model.faces, masks, model.num_vertices)
+    else:
+        regions = np.full(model.faces.shape[0], head.REGION_ID["skin"], np.int32)
+    return model, regions
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneConfig:
+    """Where the scene comes from (flags of every entry point that loads one)."""
+
+    data: str = ""
+    flame_model: str = ""
+    flame_masks: str = ""
+    size: int = 128
+
+    def __post_init__(self):
+        if self.size < 8:
+            raise ValueError(f"size must be >= 8, got {self.size}")
+
+
+SCENE_HELP = dict(
+    data="a NeRSemble / GaussianAvatars folder (transforms_*.json, images, flame_param); "
+         "empty: the embedded synthetic scene",
+    flame_model="FLAME model file (.pkl or gae_jax .npz) posing --data; empty: the embedded head",
+    flame_masks="FLAME_masks.pkl naming the FLAME model's regions (lips, eyeballs, scalp)",
+    size="image size of the embedded scene (pixels; --data keeps its own)")
+
+
+def load_scene(source: SceneConfig = SceneConfig(), progress: bool = False) -> Scene:
+    """The scene a `SceneConfig` names."""
+    data, flame_model, flame_masks = source.data, source.flame_model, source.flame_masks
+    if not data:
+        if flame_model or flame_masks:
+            raise ValueError("--flame-model and --flame-masks need --data (the embedded scene "
+                             "is posed by the embedded head)")
+        return synthetic.make_synthetic_scene(size=source.size, progress=progress)
+    model, regions = load_model(flame_model, flame_masks, data)
+    return nersemble.load_scene(data, model, regions)

@@ -1,0 +1,136 @@
+"""What a multi-view capture of a head holds: its FLAME model, cameras, motions and images.
+
+A `Scene` is host data (numpy). It carries everything the later stages need -- the model that
+poses the mesh, per-face region labels, cameras in OpenCV axes, sequences of FLAME parameters,
+ground-truth images and splits -- so that the embedded synthetic scene (`synthetic`) and a
+user's NeRSemble folder (`nersemble`) are used the same way. `scene.rig.put_rig` moves what a
+jitted step needs onto the device.
+
+Splits of a sequence: "train" (reconstruction and editing), "self_reenactment" (a held-out motion
+of the same person) and "cross_identity" (another person's motion driving this avatar).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gae_jax.model import flame
+from gae_jax.render.camera import Camera
+
+SPLITS = ("train", "self_reenactment", "cross_identity")
+
+
+@dataclasses.dataclass(frozen=True)
+class Sequence:
+    """A motion: FLAME parameters per frame (T, ...) for one identity, and its split."""
+
+    name: str
+    identity: str
+    split: str  # one of SPLITS
+    expr: np.ndarray  # (T, E)
+    rotation: np.ndarray  # (T, 3)
+    neck: np.ndarray
+    jaw: np.ndarray
+    eyes: np.ndarray  # (T, 6)
+    translation: np.ndarray
+
+    @property
+    def num_frames(self) -> int:
+        return self.expr.shape[0]
+
+    def params(self, shape: np.ndarray, frame: int) -> flame.FlameParams:
+        """FlameParams of one frame with the given identity shape coefficients."""
+        f = jnp.float32
+        return flame.FlameParams(
+            shape=jnp.asarray(shape, f), expr=jnp.asarray(self.expr[frame], f),
+            rotation=jnp.asarray(self.rotation[frame], f), neck=jnp.asarray(self.neck[frame], f),
+            jaw=jnp.asarray(self.jaw[frame], f), eyes=jnp.asarray(self.eyes[frame], f),
+            translation=jnp.asarray(self.translation[frame], f))
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """Model, cameras, identities, sequences and ground truth of one capture.
+
+    Attributes:
+      model: the FLAME model (or the built-in head in its layout) that poses the mesh.
+      face_regions: (F,) int32 region label of each face (`model.head.REGIONS`).
+      intrinsics: (C, 4) fx, fy, cx, cy; w2c: (C, 4, 4); width, height: image size.
+      train_cameras, held_out_cameras: camera indices.
+      shapes: identity name -> (S,) shape coefficients.
+      vertex_colors: identity name -> (V, 3) colour to start a reconstruction from.
+      sequences: name -> Sequence.
+      images: sequence name -> (C, T, H, W, 3) uint8 ground truth (zeros where not captured).
+      regions: sequence name -> (C, T, H, W) int8 per-pixel labels: region ids where the
+        scene knows them (synthetic), 0 on the foreground mask otherwise; -1 background.
+      background: (3,) background colour.
+      kind: "synthetic" (ray-cast, so the ideal edit is known) or "capture" (a user's data).
+      albedo: identity name -> (V, 3) unshaded albedo (synthetic scenes only: it defines the
+        ideal edit).
+      supersample: rays per pixel per axis of a synthetic scene's ground truth (its ideal edit
+        is ray-cast the same way).
+    """
+
+    model: flame.FlameModel
+    face_regions: np.ndarray
+    intrinsics: np.ndarray
+    w2c: np.ndarray
+    width: int
+    height: int
+    train_cameras: tuple
+    held_out_cameras: tuple
+    shapes: dict
+    vertex_colors: dict
+    sequences: dict
+    images: dict
+    regions: dict
+    background: np.ndarray
+    kind: str = "synthetic"
+    albedo: Optional[dict] = None
+    supersample: int = 1
+
+    @property
+    def num_cameras(self) -> int:
+        return self.intrinsics.shape[0]
+
+    def camera(self, index: int) -> Camera:
+        """The index-th camera as a `Camera` pytree."""
+        return Camera(intrinsics=jnp.asarray(self.intrinsics[index], jnp.float32),
+                      w2c=jnp.asarray(self.w2c[index], jnp.float32), width=self.width,
+                      height=self.height)
+
+    def sequences_of(self, split: str) -> list:
+        """Names of the sequences of one split, in the scene's order."""
+        if split not in SPLITS:
+            raise ValueError(f"unknown split {split!r}; choose from {SPLITS}")
+        return [n for n, s in self.sequences.items() if s.split == split]
+
+
+def training_frames(scene: Scene) -> list:
+    """(sequence name, frame) pairs of the training sequences."""
+    return [(n, t) for n in scene.sequences_of("train")
+            for t in range(scene.sequences[n].num_frames)]
+
+
+def posed_vertices(scene: Scene, frames, identity: str = "A") -> np.ndarray:
+    """(T, V, 3) mesh vertices of an identity's shape under the given (sequence, frame) motions."""
+    lbs = jax.jit(flame.lbs)
+    return np.stack([np.asarray(lbs(scene.model, scene.sequences[n].params(
+        scene.shapes[identity], t))) for n, t in frames])
+
+
+def training_images(scene: Scene) -> np.ndarray:
+    """(C, T, H, W, 3) uint8 images of `training_frames(scene)` (frames in the same order)."""
+    return np.concatenate([scene.images[n] for n in scene.sequences_of("train")], axis=1)
+
+
+def stacked_params(scene: Scene, names, identity: str = "A") -> flame.FlameParams:
+    """FlameParams with a leading frame axis over all frames of the named sequences."""
+    frames = [scene.sequences[n].params(scene.shapes[identity], t) for n in names
+              for t in range(scene.sequences[n].num_frames)]
+    return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
