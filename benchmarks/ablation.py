@@ -3,13 +3,13 @@
     python benchmarks/ablation.py [--iterations 100] [--out benchmarks/results/ablation]
                                   [--clip-folder DIR] [--rows in2n no_wabe ...]
 
-Rows (presets of `train.PRESETS`, all at the same iteration count so time is comparable):
+Rows (presets of `edit.config.PRESETS`, all at the same iteration count so time is comparable):
   in2n       Instruct-NeRF2NeRF: standard blending, no GAN, iterative dataset update
   no_wabe    ours without WABE (standard blending)
   no_adv     ours without the adversarial loss
   paper      ours as the paper writes it: WABE in the forward pass, one lr 1e-2 for everything
   code       ours as the released code does it: gradient mask (front Gaussians, no mouth), pairs
-  wabe_grad  ours (the `fast` default): WABE on the gradient only
+  fast       ours (the default): WABE on the gradient only
 Instructions: "turn the lips blue" (lips occlude the teeth), "give her red eyes" (eyelids occlude
 the irises), "make it an oil painting" (style, OpenCV); the lips also at editor noise 0.7 (the eyes
 too with --edits ... eyes_noisy). A style edit has no ideal 3D counterpart: its PSNR columns are
@@ -26,19 +26,22 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from editbench import Bench, mean_over_protocols, score  # noqa: E402
+from editbench import Bench, mean_over_protocols  # noqa: E402
+from editbench import score_of as score  # noqa: E402
 
-from gae_jax.scene import synthetic
-from gae_jax import evaluate, train  # noqa: E402
-from gae_jax import reconstruct as rc  # noqa: E402
+from gae_jax.edit.config import preset  # noqa: E402
+from gae_jax.evaluation import protocols  # noqa: E402
+from gae_jax.scene import synthetic  # noqa: E402
+from gae_jax.scene.types import training_frames  # noqa: E402
+from gae_jax.train import original_avatar  # noqa: E402
 
-ROWS = ("in2n", "no_wabe", "no_adv", "paper", "code", "wabe_grad")
+ROWS = ("in2n", "no_wabe", "no_adv", "paper", "code", "fast")
 # IN2N replaces one dataset image per iteration: at 100 iterations it has edited 100 of the 1200
 # training images. This row gives it one full pass over the dataset (lips only: ~10 minutes).
 PASS_ROW = "in2n_pass"
 LABELS = {"in2n": "Instruct-NeRF2NeRF", "no_wabe": "ours w/o WABE",
           "no_adv": "ours w/o adversarial", "paper": "ours (paper: forward WABE)",
-          "code": "ours (released code's mask)", "wabe_grad": "ours (WABE on gradient, default)",
+          "code": "ours (released code's mask)", "fast": "ours (WABE on gradient, default)",
           PASS_ROW: "Instruct-NeRF2NeRF, one dataset pass (1200 it.)"}
 EDITS = (("lips", "turn the lips blue", "semantic", 0.3),
          ("lips_noisy", "turn the lips blue", "semantic", 0.7),
@@ -56,7 +59,7 @@ def variant_name(row: str, edit: str) -> str:
 def table(results: dict, edit: str) -> str:
     guard = GUARD[edit.split("_")[0]]
     cols = []
-    for p in evaluate.PROTOCOLS:
+    for p in protocols.PROTOCOLS:
         short = {"novel_view": "NV", "self_reenactment": "SR", "cross_identity": "CR"}[p]
         cols += [(p, "psnr", "edited", f"{short} edit"), (p, "psnr", guard, f"{short} {guard}"),
                  (p, "psnr", "whole", f"{short} whole")]
@@ -72,9 +75,9 @@ def table(results: dict, edit: str) -> str:
         cells = [_fmt(score(rec, p, m, r, who)) for p, m, r, _ in cols]
         cells.append(_fmt(mean_over_protocols(rec, "lpips", "whole", who), 3))
         ev = rec["evaluation"]
-        flick = [ev[p]["flicker"][who]["whole"] for p in evaluate.PROTOCOLS]
+        flick = [ev[p]["flicker"][who]["whole"] for p in protocols.PROTOCOLS]
         cells.append(_fmt(sum(flick) / len(flick), 4))
-        clips = [[ev[p].get(k) for p in evaluate.PROTOCOLS] for k in ("clip_s", "clip_c")]
+        clips = [[ev[p].get(k) for p in protocols.PROTOCOLS] for k in ("clip_s", "clip_c")]
         cells += [_fmt(sum(c) / len(c), 3) if who == "ours" and None not in c else "-"
                   for c in clips]
         cells.append("-" if who != "ours" else _fmt(rec["edit_seconds"], 0))
@@ -99,7 +102,7 @@ def summary(results: dict, edits: list) -> str:
                               {})
             if edit == "oil":
                 ev = rec.get("evaluation")
-                flick = (sum(ev[p]["flicker"][who]["whole"] for p in evaluate.PROTOCOLS) / 3
+                flick = (sum(ev[p]["flicker"][who]["whole"] for p in protocols.PROTOCOLS) / 3
                          if ev else None)
                 cells += [_fmt(flick, 4), _fmt(mean_over_protocols(rec, "psnr", "whole", who))]
             else:
@@ -127,21 +130,23 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     bench = Bench(args.out + ".json", clip_folder=args.clip_folder)
+    scene = synthetic.make_synthetic_scene(size=128, progress=False)
+    original = original_avatar(scene, preset("fast").reconstruct_iterations, progress=False)
     for row in args.rows:  # one row's edits share a compiled step
         for edit, prompt, editor, noise in EDITS:
             if edit not in args.edits:
                 continue
-            config = train.preset(row, iterations=args.iterations, prompt=prompt, editor=editor,
+            config = preset(row, iterations=args.iterations, prompt=prompt, editor=editor,
                                    editor_noise=noise, checkpoint_every=0)
-            bench.run(variant_name(row, edit), config, extra=dict(row=row, edit=edit))
+            bench.run(variant_name(row, edit), config, scene, original,
+                      extra=dict(row=row, edit=edit))
     if args.pass_edits:
-        scene = synthetic.make_synthetic_scene(size=128, progress=False)
-        images = len(scene.train_cameras) * len(rc.training_frames(scene))
+        images = len(scene.train_cameras) * len(training_frames(scene))
         for edit, prompt, editor, noise in EDITS:
             if edit in args.pass_edits:
-                config = train.preset("in2n", iterations=images, prompt=prompt, editor=editor,
+                config = preset("in2n", iterations=images, prompt=prompt, editor=editor,
                                       editor_noise=noise, checkpoint_every=0)
-                bench.run(variant_name(PASS_ROW, edit), config,
+                bench.run(variant_name(PASS_ROW, edit), config, scene, original,
                           extra=dict(row=PASS_ROW, edit=edit))
     bench.save(iterations=args.iterations)
     sections = [f"# Ablation ({args.iterations} edit iterations, 128 px default scene)\n",

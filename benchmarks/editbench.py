@@ -1,10 +1,9 @@
 """Shared machinery of the edit studies (ablation, pareto, stability).
 
-Runs `train.edit_avatar` + `train.evaluate_edit` for many `EditConfig`s in one process:
-  * sessions (scene, original avatar, jitted step) are reused across configs that differ only in
-    what the step does not read (prompt, editor, noise, seed, iteration count), so each distinct
-    step compiles once;
-  * the ideal (ray-cast) frames are cached per instruction;
+Runs `edit.edit_avatar` + `score.evaluate_avatars` for many `EditConfig`s in one process:
+  * jitted steps are reused across configs with the same `StepConfig` (what the step reads), so
+    each distinct step compiles once;
+  * the evaluation sets (ray-cast ideal frames) are cached per (scene, prompt);
   * results go to a JSON file after every variant (atomic write) and a rerun skips variants already
     there, so an interrupted study resumes where it stopped.
 """
@@ -19,12 +18,11 @@ import time
 
 import numpy as np
 
-from gae_jax import train
+from gae_jax.edit import edit
+from gae_jax.edit.config import EditConfig, StepConfig
+from gae_jax.evaluation import protocols, score, truth
+from gae_jax.scene.synthetic import scene_fingerprint
 from gae_jax.util.fileio import atomic_write_bytes
-
-# Fields the jitted step, preview and renderer do not read.
-HOST_ONLY = ("prompt", "editor", "editor_noise", "ip2p_folder", "clip_folder", "seed",
-             "checkpoint_every", "iterations")
 
 
 class Bench:
@@ -34,31 +32,36 @@ class Bench:
         self.path = path
         self.clip_folder = clip_folder
         self.frames = frames
-        self.sessions: dict = {}
-        self.truth_cache: dict = {}
+        self.steps: dict = {}
+        self.evalsets: dict = {}
         self.results: dict = {}
         if os.path.isfile(path):
             with open(path) as f:
                 self.results = json.load(f).get("variants", {})
 
-    def session(self, config: train.EditConfig, scene=None, original=None):
-        fields = dataclasses.asdict(config)
-        key = json.dumps({k: v for k, v in fields.items() if k not in HOST_ONLY},
-                         sort_keys=True) + str(id(scene)) + str(id(original))
-        fresh = key not in self.sessions
-        if fresh:
-            self.sessions[key] = train.setup(config, scene=scene, original=original)
-        return dataclasses.replace(self.sessions[key], config=config), fresh
+    def session(self, config: EditConfig, scene, original):
+        """An edit session; the step and preview compiled once per StepConfig."""
+        key = StepConfig.of(config)
+        fresh = key not in self.steps
+        session = edit.setup(config, scene, original, *self.steps.get(key, (None, None)))
+        self.steps[key] = (session.step, session.preview)
+        return session, fresh
 
-    def run(self, name: str, config: train.EditConfig, extra: dict | None = None, scene=None,
-            original=None, evaluate: bool = True, on_edited=None) -> dict:
+    def evalset(self, scene, prompt: str):
+        key = (scene_fingerprint(scene), prompt)
+        if key not in self.evalsets:
+            self.evalsets[key] = truth.build(scene, prompt, frames=self.frames)
+        return self.evalsets[key]
+
+    def run(self, name: str, config: EditConfig, scene, original, extra: dict | None = None,
+            evaluate: bool = True, on_edited=None) -> dict:
         """Edits with `config` (unless `name` is already recorded) and records the result;
         `on_edited(avatar)` sees the edited avatar."""
         if name in self.results:
             return self.results[name]
         session, fresh = self.session(config, scene, original)
         start = time.perf_counter()
-        edited, history = train.edit_avatar(session)
+        edited, history = edit.edit_avatar(session)
         seconds = time.perf_counter() - start
         if on_edited is not None:
             on_edited(edited)
@@ -66,13 +69,13 @@ class Bench:
             edited.colors, edited.means, edited.log_scales, edited.opacity_logits)))
         record = dict(config=dataclasses.asdict(config), edit_seconds=round(seconds, 1),
                       compiled_in_this_run=fresh, finite=finite, gaussians=int(edited.num),
-                      tile_capacity=session.data.tile_capacity,
+                      tile_capacity=session.rig.tile_capacity,
                       final_losses=history[-1] if history else {}, **(extra or {}))
         if evaluate and finite:
             t = time.perf_counter()
-            record["evaluation"] = train.evaluate_edit(session, edited, frames=self.frames,
-                                                       clip_folder=self.clip_folder,
-                                                       truth_cache=self.truth_cache)
+            record["evaluation"] = score.evaluate_avatars(
+                self.evalset(scene, config.prompt), edited, original, session.rig.tile_capacity,
+                session.step_config.blend, self.clip_folder)
             record["evaluation_seconds"] = round(time.perf_counter() - t, 1)
         self.results[name] = _jsonable(record)
         self.save()
@@ -97,7 +100,7 @@ def _jsonable(x):
     return x
 
 
-def score(record: dict, protocol: str, metric: str, region: str, who: str = "ours"):
+def score_of(record: dict, protocol: str, metric: str, region: str, who: str = "ours"):
     """A number from a record's evaluation, or None."""
     ev = record.get("evaluation")
     if not ev or protocol not in ev:
@@ -106,8 +109,6 @@ def score(record: dict, protocol: str, metric: str, region: str, who: str = "our
 
 
 def mean_over_protocols(record: dict, metric: str, region: str, who: str = "ours"):
-    from gae_jax import evaluate
-
-    values = [score(record, p, metric, region, who) for p in evaluate.PROTOCOLS]
+    values = [score_of(record, p, metric, region, who) for p in protocols.PROTOCOLS]
     values = [v for v in values if v is not None]
     return round(float(np.mean(values)), 3) if values else None

@@ -28,10 +28,14 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from editbench import Bench, mean_over_protocols  # noqa: E402
 
+from gae_jax.edit import edit  # noqa: E402
+from gae_jax.edit.config import preset  # noqa: E402
+from gae_jax.evaluation import score  # noqa: E402
 from gae_jax.model import avatar as av  # noqa: E402
-from gae_jax.scene import synthetic
-from gae_jax.model import head
-from gae_jax import train  # noqa: E402
+from gae_jax.scene import rig as rigs  # noqa: E402
+from gae_jax.scene import synthetic  # noqa: E402
+from gae_jax.scene.types import posed_vertices, training_frames  # noqa: E402
+from gae_jax.train import original_avatar  # noqa: E402
 
 VARIANTS = {
     "default": {},
@@ -51,43 +55,33 @@ def keep_most_opaque(avatar: av.Avatar, fraction: float, num_faces: int) -> av.A
     return av.prune(avatar, remove, num_faces, keep_every_face=False)
 
 
-def with_capacity(session: train.Session, capacity: int) -> train.Session:
-    d = dataclasses.replace(session.data, tile_capacity=capacity)
-    blend = train.blend_of(session.config)
-    canonical = av.deform(session.original, session.model.v_template, session.model.faces).means
-    return dataclasses.replace(session, data=d, step=train.make_edit_step(session.config, d),
-                               preview=train.make_preview(d, blend, canonical),
-                               render=train.make_renderer(d, blend))
-
-
-def run_variant(bench: Bench, name: str, knobs: dict, base: train.EditConfig, scene128):
+def run_variant(bench: Bench, name: str, knobs: dict, base, scene128):
     if name in bench.results:
         return bench.results[name]
-    model, assets = head.make_head()
     config = dataclasses.replace(base, iterations=knobs.get("iterations", base.iterations))
     size = knobs.get("size", 128)
     scene = scene128 if size == 128 else synthetic.make_synthetic_scene(size=size, progress=False)
-    original = train.original_avatar(scene, assets, base.reconstruct_iterations, progress=False)
+    original = original_avatar(scene, base.reconstruct_iterations, progress=False)
     if "keep" in knobs:
-        original = keep_most_opaque(original, knobs["keep"], model.faces.shape[0])
-    config = dataclasses.replace(config, size=size)
-    session, _ = bench.session(config, scene=scene, original=original)
-    auto_capacity = session.data.tile_capacity
+        original = keep_most_opaque(original, knobs["keep"], scene.model.faces.shape[0])
+    session, _ = bench.session(config, scene, original)
+    auto_capacity = session.rig.tile_capacity
     if "capacity" in knobs:
-        capacity = max(32, int(round(knobs["capacity"] * session.data.tile_capacity)))
-        session = with_capacity(session, capacity)
-    warm = train.edit_avatar(dataclasses.replace(
+        capacity = max(32, int(round(knobs["capacity"] * auto_capacity)))
+        session = dataclasses.replace(session, rig=dataclasses.replace(session.rig,
+                                                                       tile_capacity=capacity))
+    edit.edit_avatar(dataclasses.replace(
         session, config=dataclasses.replace(config, iterations=1)))  # compiles
-    del warm
     start = time.perf_counter()
-    edited, history = train.edit_avatar(session)
+    edited, history = edit.edit_avatar(session)
     seconds = time.perf_counter() - start
-    # score at 128 px whatever the edit's resolution: the avatar is 3D
-    judge = session if size == 128 else train.setup(dataclasses.replace(config, size=128),
-                                                    scene=scene128, original=original)
-    evaluation = train.evaluate_edit(judge, edited, truth_cache=bench.truth_cache)
+    # Scored at 128 px whatever the edit's resolution: the avatar is 3D.
+    judge_capacity = session.rig.tile_capacity if size == 128 else rigs.put_rig(
+        scene128, original, posed_vertices(scene128, training_frames(scene128)[:1])).tile_capacity
+    evaluation = score.evaluate_avatars(bench.evalset(scene128, config.prompt), edited,
+                                        original, judge_capacity, session.step_config.blend)
     record = dict(knobs=knobs, edit_seconds=round(seconds, 1), gaussians=int(edited.num),
-                  tile_capacity=session.data.tile_capacity, size=size,
+                  tile_capacity=session.rig.tile_capacity, size=size,
                   iterations=config.iterations,
                   auto_tile_capacity=auto_capacity,
                   evaluation=evaluation)
@@ -145,7 +139,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     bench = Bench(args.out + ".json")
-    base = train.preset("fast", checkpoint_every=0, iterations=args.iterations)
+    base = preset("fast", checkpoint_every=0, iterations=args.iterations)
     scene128 = synthetic.make_synthetic_scene(size=128, progress=False)
     for name in args.variants:
         run_variant(bench, name, VARIANTS[name], base, scene128)

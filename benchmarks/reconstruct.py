@@ -34,26 +34,29 @@ VARIANTS = {
 
 
 def run_variant(name: str) -> dict:
+    from gae_jax.evaluation.score import psnr_against_capture
+    from gae_jax.fit.config import ReconstructConfig
+    from gae_jax.fit.fit import fit
     from gae_jax.scene import synthetic
-    from gae_jax import reconstruct as rc
+    from gae_jax.scene.types import training_frames
 
     options = dict(VARIANTS[name])
     size = options.pop("size", 128)
     scene = synthetic.make_synthetic_scene(size=size, progress=False)
-    config = rc.ReconstructConfig(**options)
+    config = ReconstructConfig(**options)
     start = time.perf_counter()
-    avatar, history = rc.fit(scene, config)
+    avatar, history = fit(scene, config)
     seconds = time.perf_counter() - start
-    frames = rc.training_frames(scene)[::4]
+    frames = training_frames(scene)[::4]
     mix = [("mix", t) for t in range(0, scene.sequences["mix"].num_frames, 2)]
     return dict(
         variant=name, size=size, config=options, seconds=round(seconds, 1),
         steps_per_second=round(config.iterations / seconds, 2),
         gaussians=int(avatar.num),
         train_psnr_last50=round(sum(h["psnr"] for h in history[-50:]) / 50, 2),
-        held_out_camera_psnr=round(rc.evaluate_psnr(avatar, scene, frames,
+        held_out_camera_psnr=round(psnr_against_capture(avatar, scene, frames,
                                                     scene.held_out_cameras), 2),
-        held_out_sequence_psnr=round(rc.evaluate_psnr(avatar, scene, mix,
+        held_out_sequence_psnr=round(psnr_against_capture(avatar, scene, mix,
                                                       scene.train_cameras[::3]), 2),
         overflow_tiles_last=history[-1]["overflow_tiles"])
 

@@ -29,12 +29,16 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from editbench import Bench, mean_over_protocols  # noqa: E402
 
-from gae_jax.model import avatar as av  # noqa: E402
-from gae_jax.model import avatar_io, head
-from gae_jax.scene import synthetic
-from gae_jax import evaluate, train  # noqa: E402
-from gae_jax.render import splat
+from gae_jax.edit import edit  # noqa: E402
+from gae_jax.edit.config import StepConfig, preset  # noqa: E402
+from gae_jax.evaluation import metrics, protocols, truth  # noqa: E402
+from gae_jax.model import avatar_io, head  # noqa: E402
+from gae_jax.render import splat  # noqa: E402
 from gae_jax.render.camera import look_at_w2c, make_camera  # noqa: E402
+from gae_jax.scene import rig as rigs  # noqa: E402
+from gae_jax.scene import synthetic  # noqa: E402
+from gae_jax.scene.types import Sequence, posed_vertices, training_frames  # noqa: E402
+from gae_jax.train import original_avatar  # noqa: E402
 
 SWEEPS = {
     "beta": [(f"wabe_grad_beta_{b:g}", dict(blend="wabe_grad", beta=b), b)
@@ -65,7 +69,7 @@ def stress_scene(scene, model):
         jaw[i, 0], rotation[i, 1] = j, yaw
         expr[i, e["blink_left"]] = expr[i, e["blink_right"]] = blink
         eyes[i, 1] = eyes[i, 4] = gaze
-    seq = synthetic.Sequence("stress", "A", "stress", expr, rotation, np.zeros((n, 3)), jaw, eyes,
+    seq = Sequence("stress", "A", "stress", expr, rotation, np.zeros((n, 3)), jaw, eyes,
                         np.zeros((n, 3)))
     intr, w2c = [], []
     for _, yaw, pitch in EXTREME_CAMERAS:
@@ -85,30 +89,32 @@ def stress_scene(scene, model):
 
 
 def extremes(config, scene, original, edited) -> list:
-    """Scores of `edited` at every (extreme pose, extreme camera)."""
-    ext, cams = stress_scene(scene, head.make_head()[0])
-    session = train.setup(config, scene=ext, original=original)
-    s = session
-    instruction, albedo = train.ideal_edit(s)
+    """Scores of `edited` at every (extreme pose, extreme camera); the tile capacity is the
+    edit's (sized for the training views)."""
+    ext, cams = stress_scene(scene, scene.model)
+    capacity = rigs.put_rig(scene, original,
+                            posed_vertices(scene, training_frames(scene)[:1])).tile_capacity
+    instruction, albedo = truth.ideal_albedo(scene, config.prompt)
+    render = rigs.make_view_renderer(StepConfig.of(config).blend)
     rows = []
     for p, pose in enumerate(EXTREME_POSES):
-        protocol = evaluate.ProtocolFrames("stress", [("stress", p)], cams)
-        truth, regions = evaluate.ideal_frames(s.scene, s.model, s.assets, albedo, protocol)
-        verts = train.protocol_vertices(s, protocol)
-        ours = train.render_avatar_frames(s, edited, verts, cams)
-        before = train.render_avatar_frames(s, s.original, verts, cams)
-        g = av.deform(edited, verts[0], s.model.faces)
+        frames = truth.frames_truth(ext, protocols.ProtocolFrames("stress", [("stress", p)],
+                                                                  cams), albedo)
+        rig = rigs.put_rig(ext, edited, frames.vertices, tile_capacity=capacity)
+        ours = rigs.render_views(render, edited.trainable(), rig, cams)
+        before = rigs.render_views(render, original.trainable(), rig, cams)
+        g = rigs.gaussians_at(edited.trainable(), rig, 0)
         for k, (cam_name, _, _) in enumerate(EXTREME_CAMERAS):
-            load = int(splat.tile_load(g, s.scene.camera(cams[k])))
-            score = evaluate.region_scores(ours[0, k], truth[0, k], regions[0, k],
-                                           instruction.region, perceptual=False)["psnr"]
-            base = evaluate.region_scores(before[0, k], truth[0, k], regions[0, k],
+            load = int(splat.tile_load(g, ext.camera(cams[k])))
+            score = metrics.region_scores(ours[0, k], frames.truth[0, k], frames.regions[0, k],
                                           instruction.region, perceptual=False)["psnr"]
+            base = metrics.region_scores(before[0, k], frames.truth[0, k],
+                                         frames.regions[0, k], instruction.region,
+                                         perceptual=False)["psnr"]
             rows.append(dict(pose=pose[0], camera=cam_name,
                              finite=bool(np.all(np.isfinite(ours[0, k]))),
-                             tile_load=load, tile_capacity=s.data.tile_capacity,
-                             overflow=load > s.data.tile_capacity, ours=score,
-                             original_avatar=base))
+                             tile_load=load, tile_capacity=capacity,
+                             overflow=load > capacity, ours=score, original_avatar=base))
     return rows
 
 
@@ -179,10 +185,9 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     bench = Bench(args.out + ".json")
-    base = train.preset("fast", checkpoint_every=0, iterations=args.iterations)
-    scene = synthetic.make_synthetic_scene(size=base.size, progress=False)
-    _, assets = head.make_head()
-    original = train.original_avatar(scene, assets, base.reconstruct_iterations, progress=False)
+    base = preset("fast", checkpoint_every=0, iterations=args.iterations)
+    scene = synthetic.make_synthetic_scene(size=128, progress=False)
+    original = original_avatar(scene, base.reconstruct_iterations, progress=False)
     default_ply = args.out + "-default-edit.ply"
 
     def keep_default(edited):
@@ -190,13 +195,13 @@ def main(argv=None) -> int:
 
     for sweep in args.sweeps:
         for name, knobs, _ in SWEEPS[sweep]:
-            bench.run(name, dataclasses.replace(base, **knobs), extra=dict(sweep=sweep),
-                      scene=scene, original=original,
-                      on_edited=keep_default if name == DEFAULT_VARIANT else None)
+            bench.run(name, dataclasses.replace(base, **knobs), scene, original,
+                      extra=dict(sweep=sweep), on_edited=keep_default if name == DEFAULT_VARIANT else None)
     if not os.path.isfile(default_ply):  # resumed after the default variant was recorded
-        session, _ = bench.session(base, scene=scene, original=original)
-        keep_default(train.edit_avatar(session)[0])
-    rows = extremes(base, scene, original, train.load_avatar(default_ply, assets))
+        session, _ = bench.session(base, scene, original)
+        keep_default(edit.edit_avatar(session)[0])
+    rows = extremes(base, scene, original,
+                    avatar_io.load_bound_avatar(default_ply, scene.face_regions))
     bench.save(extremes=rows)
     plot(bench.results, args.out + ".png")
     table = markdown(bench.results, rows)

@@ -57,6 +57,5 @@ def main_guard(run: Callable[[], int]) -> int:
     try:
         return run()
     except USER_ERRORS as e:
-        message = str(e) if not isinstance(e, KeyError) else e.args[0]
-        print(f"error: {message}", file=sys.stderr)
+        print(f"error: {e}", file=sys.stderr)
         return 2

@@ -24,7 +24,7 @@ from gae_jax.fit.config import ReconstructConfig
 from gae_jax.fit.fit import fit
 from gae_jax.model import avatar_io
 from gae_jax.scene.load import SceneConfig, SCENE_HELP, load_scene
-from gae_jax.scene.types import Scene, stacked_params
+from gae_jax.scene.types import Scene, stacked_params, training_frames
 from gae_jax.util.fileio import atomic_write_bytes
 
 HELP = dict(
@@ -63,8 +63,9 @@ def run(config: ReconstructConfig, workdir: str, scene: Scene, resume: bool = Fa
     report = dict(config=dataclasses.asdict(config), fit_seconds=round(seconds, 1),
                   gaussians=int(avatar.num), final=history[-1] if history else {})
     if scene.held_out_cameras:
+        frames = training_frames(scene)
         report["held_out_camera_psnr"] = round(psnr_against_capture(
-            avatar, scene, [(scene.sequences_of("train")[0], 0)], scene.held_out_cameras), 2)
+            avatar, scene, frames[::max(1, len(frames) // 4)], scene.held_out_cameras), 2)
     atomic_write_bytes(os.path.join(workdir, "reconstruct.json"),
                        json.dumps(report, indent=1).encode())
     return report

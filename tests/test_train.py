@@ -86,9 +86,15 @@ def test_resume_after_interruption_equals_the_uninterrupted_run(base, tmp_path):
         edit.edit_avatar(other, str(tmp_path / "b"), resume=True)
 
 
-def test_sharded_loop_over_two_devices_equals_one_device(base, monkeypatch):
+def test_sharded_run_over_two_devices_equals_one_device(base, tmp_path, monkeypatch):
+    """Through `train.run` (the CLI's job): batch 2 is split over a ("data",) mesh of the two
+    forced CPU devices, and the edited avatar equals the single-device run's."""
+    from gae_jax.model import avatar_io
+
     assert len(jax.devices()) >= 2, "conftest forces two CPU devices"
-    s = session_for(base, batch=2, iterations=2)
+    scene, original = base
+    config = edit_config.preset("fast", batch=2, iterations=2, checkpoint_every=0,
+                                editor_noise=0.0)
     assert sampler.data_mesh(2).devices.size == 2
     placed = []
     real_put = sampler.put_batch
@@ -99,13 +105,19 @@ def test_sharded_loop_over_two_devices_equals_one_device(base, monkeypatch):
         return out
 
     monkeypatch.setattr(edit, "put_batch", spy)
-    sharded, h2 = edit.edit_avatar(s)
+    m2 = train.run(config, str(tmp_path / "two"), scene, original, progress=False, video=False)
     assert placed == [2, 2]
     monkeypatch.setattr(edit, "data_mesh", lambda batch: None)
-    single, h1 = edit.edit_avatar(s)
-    for a, b in zip(jax.tree_util.tree_leaves(single), jax.tree_util.tree_leaves(sharded)):
-        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=2e-5, atol=2e-6)
-    np.testing.assert_allclose([h["recon"] for h in h1], [h["recon"] for h in h2], rtol=1e-5)
+    m1 = train.run(config, str(tmp_path / "one"), scene, original, progress=False, video=False)
+    assert placed[2:] == [1, 1]
+    one, two = (avatar_io.load_avatar_ply(str(tmp_path / d / "edited_avatar" / "point_cloud.ply"))
+                for d in ("one", "two"))
+    # Two devices sum the batch's gradients in another order; Adam's division by sqrt(v) + eps
+    # turns that last-bit difference into up to ~1e-5 (SH DC units) for Gaussians whose gradient
+    # is tiny (measured: 14 of 28776 values above 2e-6 after two steps, none above 1.2e-5).
+    for a, b in zip(jax.tree_util.tree_leaves(one), jax.tree_util.tree_leaves(two)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=2e-5, atol=3e-5)
+    assert m1["final_losses"]["recon"] == pytest.approx(m2["final_losses"]["recon"], rel=1e-5)
 
 
 def test_in2n_dataset_update_replaces_one_image_per_iteration(base):

@@ -46,8 +46,8 @@ def write_grid(session: Session, edited: av.Avatar, path: str, key) -> None:
         protocol = protocols.ProtocolFrames("train", s.pairs[:3], tuple(s.scene.train_cameras[:2]))
     else:
         protocol = protocols.protocol_frames(s.scene, name, frames=3, cameras=2)
-    _, albedo = truth.ideal_albedo(s.scene, s.config.prompt) if s.scene.kind == "synthetic" \
-        else (None, None)
+    albedo = (truth.ideal_albedo(s.scene, s.config.prompt)[1] if s.scene.kind == "synthetic"
+              else None)
     reference = truth.frames_truth(s.scene, protocol, albedo)
     rig = rigs.with_vertices(s.rig, reference.vertices)
     render = rigs.make_view_renderer(s.step_config.blend)

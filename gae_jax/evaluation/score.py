@@ -66,12 +66,14 @@ def evaluate_avatars(evalset: EvalSet, edited: Avatar, original: Avatar, tile_ca
 
 
 def psnr_against_capture(avatar: Avatar, scene: Scene, pairs, cameras,
-                         identity: str = "A", tile_capacity: int = 0) -> float:
-    """Mean PSNR (over views) of `avatar` against the scene's ground-truth images at cameras x
-    (sequence, frame) pairs, posed with `identity`'s shape and motion."""
+                         identity: str = "A", tile_capacity: int = 0,
+                         blend: wabe.Blend = wabe.standard()) -> float:
+    """Mean PSNR (over views) of `avatar` rendered with `blend` against the scene's
+    ground-truth images at cameras x (sequence, frame) pairs, posed with `identity`'s shape and
+    motion."""
     rig = rigs.put_rig(scene, avatar, posed_vertices(scene, pairs, identity), tile_capacity,
                        capacity_cameras=cameras)
-    images = rigs.render_views(rigs.make_view_renderer(), avatar.trainable(), rig, cameras)
+    images = rigs.render_views(rigs.make_view_renderer(blend), avatar.trainable(), rig, cameras)
     values = [float(losses.psnr(images[j, k], scene.images[n][c, t].astype(np.float32) / 255.0))
               for j, (n, t) in enumerate(pairs) for k, c in enumerate(cameras)]
     return float(np.mean(values))

@@ -139,6 +139,14 @@ def _read_pickle(path: str) -> dict:
     return obj
 
 
+def _read_npz(path: str) -> dict:
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            return {k: f[k] for k in f.files}
+    except Exception as exc:
+        raise FlameFileError(f"{path}: not a readable .npz ({exc})") from exc
+
+
 def _require(raw: dict, key: str, path: str, ndim: int) -> np.ndarray:
     if key not in raw:
         raise FlameFileError(f"{path}: missing field '{key}'")
@@ -191,11 +199,7 @@ def load_flame(path: str, n_shape: int = 300, n_expr: int = 100, dtype=jnp.float
     if not os.path.isfile(path):
         raise FlameFileError(f"{path}: no such file")
     if path.endswith(".npz"):
-        try:
-            with np.load(path, allow_pickle=False) as f:
-                raw = {k: f[k] for k in f.files}
-        except Exception as exc:
-            raise FlameFileError(f"{path}: not a readable .npz ({exc})") from exc
+        raw = _read_npz(path)
         shapedirs = _require(raw, "shapedirs", path, 3)
         exprdirs = _require(raw, "exprdirs", path, 3)
         parents = tuple(int(p) for p in _require(raw, "parents", path, 1))
@@ -253,11 +257,7 @@ def load_flame_masks(path: str) -> dict:
     if not os.path.isfile(path):
         raise FlameFileError(f"{path}: no such file")
     if path.endswith(".npz"):
-        try:
-            with np.load(path, allow_pickle=False) as f:
-                raw = {k: f[k] for k in f.files}
-        except Exception as exc:
-            raise FlameFileError(f"{path}: not a readable .npz ({exc})") from exc
+        raw = _read_npz(path)
     else:
         raw = _read_pickle(path)
     masks = {}
