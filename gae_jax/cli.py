@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 from typing import Callable
 
+from gae_jax import loop
 from gae_jax.model.flame_io import FlameFileError
 from gae_jax.util.fileio import PlyError
 
@@ -29,8 +31,11 @@ def parse_bool(text: str) -> bool:
     raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
 
 
-def add_config_flags(parser: argparse.ArgumentParser, cls, help: dict, title: str) -> None:
-    """Adds `--field-name` for every field of dataclass `cls` (default None: not given)."""
+def add_config_flags(parser: argparse.ArgumentParser, cls, help: dict, title: str,
+                     choices: dict | None = None) -> None:
+    """Adds `--field-name` for every field of dataclass `cls` (default None: not given; the help
+    shows the field's default), restricted to `choices[field]` where given."""
+    choices = choices or {}
     missing = {f.name for f in dataclasses.fields(cls)} - set(help)
     if missing:
         raise KeyError(f"no help text for {cls.__name__} fields {sorted(missing)}")
@@ -43,13 +48,39 @@ def add_config_flags(parser: argparse.ArgumentParser, cls, help: dict, title: st
             group.add_argument(flag, type=parse_bool, default=None, metavar="{true,false}",
                                help=text)
         else:
-            group.add_argument(flag, type=TYPES[str(field.type)], default=None, help=text)
+            group.add_argument(flag, type=TYPES[str(field.type)], default=None, help=text,
+                               choices=choices.get(field.name))
 
 
 def given(args: argparse.Namespace, cls) -> dict:
     """The fields of `cls` that were given on the command line."""
     return {f.name: getattr(args, f.name) for f in dataclasses.fields(cls)
             if getattr(args, f.name) is not None}
+
+
+def check_run_folder(out: str, resume: bool, overwrite: bool, checkpoint: str,
+                     marker: str = "metrics.json") -> None:
+    """Makes sure `out` can hold this run: a folder (made if missing) that holds no other run
+    (its `marker` or `checkpoint`) unless `overwrite` -- whose stale checkpoints are then
+    removed -- or, with `resume`, one that holds `checkpoint`. ValueError otherwise."""
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(f"--out {out}: is a file, not a folder")
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as e:
+        raise ValueError(f"--out {out}: cannot make the folder ({e.strerror})") from None
+    has_run = any(os.path.exists(os.path.join(out, n)) for n in (marker, checkpoint))
+    if resume:
+        if not os.path.isfile(os.path.join(out, checkpoint)):
+            finished = os.path.isfile(os.path.join(out, marker))
+            raise ValueError(f"--resume: {out} holds no {checkpoint}" + (
+                " (the run finished and removed it; --keep-checkpoint keeps it so that a run "
+                "can be extended)" if finished else " (nothing to resume)"))
+    elif has_run and not overwrite:
+        raise ValueError(f"--out {out} already holds a run; pass --overwrite to replace it, "
+                         "--resume to continue it, or choose another folder")
+    elif has_run:
+        loop.remove_checkpoint(os.path.join(out, checkpoint))
 
 
 def main_guard(run: Callable[[], int]) -> int:

@@ -50,16 +50,45 @@ def vocabulary() -> str:
             "'add green stripes to the skin'")
 
 
+NEGATIONS = ("not", "don't", "dont", "never", "without", "no", "nothing", "except")
+
+
+def _words(prompt: str) -> list:
+    return re.findall(r"[a-z']+", prompt.lower())
+
+
 def parse(prompt: str) -> Instruction:
-    """The instruction in `prompt`; ValueError (with the vocabulary) when it is not understood."""
-    words = re.findall(r"[a-z]+", prompt.lower())
-    region = next((r for w in words for r, names in REGION_WORDS.items() if w in names), None)
-    colour = next((COLOURS[w] for w in words if w in COLOURS), None)
-    if region is None or colour is None:
-        missing = "a region" if region is None else "a colour"
-        raise ValueError(f"the semantic editor does not understand {prompt!r} (no {missing} it "
-                         f"knows). It understands {vocabulary()}")
-    return Instruction(region, colour, any(w in PATTERN_WORDS for w in words))
+    """The one edit `prompt` asks for: a region, a colour, optionally stripes.
+
+    Refuses (ValueError, with the vocabulary) rather than guess: a prompt with no known region or
+    colour, with two regions or two colours ("turn the lips blue and the hair white", "turn the
+    blue lips red": run one edit per region), or with a negation ("don't make the lips red").
+    A style prompt points to `--editor style`.
+    """
+    words = _words(prompt)
+    regions = list(dict.fromkeys(r for w in words for r, names in REGION_WORDS.items()
+                                 if w in names))
+    colours = list(dict.fromkeys(w for w in words if w in COLOURS))
+    negated = [w for w in words if w in NEGATIONS]
+    problem = None
+    if negated:
+        problem = (f"it is negated ({negated[0]!r}); say what to change, not what to leave "
+                   "alone")
+    elif len(regions) > 1:
+        problem = (f"it names {len(regions)} regions ({', '.join(regions)}); one edit changes "
+                   "one region: run one edit per region")
+    elif len(colours) > 1:
+        problem = (f"it names {len(colours)} colours ({', '.join(colours)}); say only the new "
+                   "colour")
+    elif not regions or not colours:
+        missing = [m for m, found in (("a region", regions), ("a colour", colours)) if not found]
+        problem = f"it names no {' and no '.join(m[2:] for m in missing)} it knows"
+        if _style_of(words) is not None:
+            problem += " (it reads like a style: use --editor style)"
+    if problem:
+        raise ValueError(f"the semantic editor does not understand {prompt!r}: {problem}. It "
+                         f"understands {vocabulary()}")
+    return Instruction(regions[0], COLOURS[colours[0]], any(w in PATTERN_WORDS for w in words))
 
 
 def stripe_on(y: np.ndarray) -> np.ndarray:
@@ -98,14 +127,21 @@ STYLE_WORDS = {
 }
 
 
-def parse_style(prompt: str) -> str:
-    """The style named in the prompt; ValueError listing the known ones otherwise."""
-    text = prompt.lower()
-    for style, words in STYLE_WORDS.items():
-        if any(w in text for w in words):
+def _style_of(words) -> str | None:
+    for style, names in STYLE_WORDS.items():
+        if any(w in names for w in words):
             return style
-    known = "; ".join(f"{s}: {', '.join(w)}" for s, w in STYLE_WORDS.items())
-    raise ValueError(f"the style editor does not understand {prompt!r}. It knows: {known}")
+    return None
+
+
+def parse_style(prompt: str) -> str:
+    """The style named in the prompt (whole words: "spoil" is not "oil"); ValueError listing the
+    known ones otherwise."""
+    style = _style_of(_words(prompt))
+    if style is None:
+        known = "; ".join(f"{s}: {', '.join(w)}" for s, w in STYLE_WORDS.items())
+        raise ValueError(f"the style editor does not understand {prompt!r}. It knows: {known}")
+    return style
 
 
 SOURCE_CAPTION = "a photo of a person's face"

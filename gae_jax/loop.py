@@ -1,9 +1,11 @@
 """What the fit and the edit loops share: atomic checkpoints and a metrics recorder.
 
 A checkpoint is one `.npz` written atomically: the leaves of named pytrees (`name/i`), extra
-host arrays, and a JSON `meta` holding the run's config. `load_checkpoint` rebuilds the pytrees
-from templates of the same structure and refuses a checkpoint written with another config,
-naming the fields that differ.
+host arrays, and a JSON `meta` holding the run's config. The checkpoint it replaces is kept as
+`<name>.prev.npz` until the new one is complete, and `load_checkpoint` falls back to it (saying
+so) when the newest is unreadable. It rebuilds the pytrees from templates of the same structure
+and refuses a checkpoint written with another config, naming the fields that differ; `free`
+fields may differ, `growable` ones may grow (more iterations extend a finished run).
 
 `Recorder` keeps the history of per-step metrics. It converts a step's metrics to host floats
 only when the next step has been dispatched (`push`), so the host never waits on the device
@@ -15,6 +17,8 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
+import os
+import sys
 from typing import Callable, Optional
 
 import jax
@@ -23,9 +27,21 @@ import numpy as np
 from gae_jax.util.fileio import atomic_write_bytes
 
 
+def previous_path(path: str) -> str:
+    """Where the checkpoint before the newest is kept."""
+    return path[:-len(".npz")] + ".prev.npz" if path.endswith(".npz") else path + ".prev"
+
+
+def remove_checkpoint(path: str) -> None:
+    """Deletes a checkpoint and the previous one (a finished run that keeps none)."""
+    for p in (path, previous_path(path)):
+        if os.path.isfile(p):
+            os.remove(p)
+
+
 def save_checkpoint(path: str, trees: dict, arrays: dict, config, **meta) -> None:
     """Writes pytrees (name -> pytree), host arrays (name -> array) and meta (with the config's
-    fields) into one `.npz`, atomically."""
+    fields) into one `.npz`, atomically; the checkpoint it replaces becomes the previous one."""
     out = {f"{name}/{i}": np.asarray(leaf) for name, tree in trees.items()
            for i, leaf in enumerate(jax.tree_util.tree_leaves(tree))}
     out.update({f"array/{k}": np.asarray(v) for k, v in arrays.items()})
@@ -33,35 +49,68 @@ def save_checkpoint(path: str, trees: dict, arrays: dict, config, **meta) -> Non
     out["meta"] = np.frombuffer(blob, np.uint8)
     buffer = io.BytesIO()
     np.savez(buffer, **out)
+    if os.path.isfile(path):
+        os.replace(path, previous_path(path))
     atomic_write_bytes(path, buffer.getvalue())
 
 
-def load_checkpoint(path: str, templates: dict, config):
+def load_checkpoint(path: str, templates: dict, config, free=(), growable=()):
     """(trees, arrays, meta) of `save_checkpoint`; `templates` gives each pytree's structure
     (a callable receives the arrays and returns the template, for shapes known only from the
-    file). ValueError for an unreadable file or another config."""
+    file). An unreadable newest checkpoint falls back to the previous one, with a warning on
+    stderr. ValueError when neither is readable or the config differs (see `check_config`)."""
+    try:
+        return _load(path, templates, config, free, growable)
+    except _Unreadable as newest:
+        previous = previous_path(path)
+        if not os.path.isfile(previous):
+            raise ValueError(str(newest)) from None
+        print(f"warning: {newest}; resuming from the previous checkpoint {previous}",
+              file=sys.stderr)
+        try:
+            return _load(previous, templates, config, free, growable)
+        except _Unreadable as e:
+            raise ValueError(f"{newest}; and {e}") from None
+
+
+class _Unreadable(Exception):
+    pass
+
+
+def _load(path, templates, config, free, growable):
     try:
         f = np.load(path)
-    except (OSError, ValueError) as e:
-        raise ValueError(f"{path}: not a readable checkpoint ({e})") from e
-    with f:
         meta = json.loads(bytes(f["meta"]).decode())
-        check_config(meta["config"], config, path)
-        arrays = {k[len("array/"):]: f[k] for k in f.files if k.startswith("array/")}
+    except Exception as e:  # truncated zip, bad JSON, missing member: all mean "unreadable"
+        raise _Unreadable(f"{path}: not a readable checkpoint ({type(e).__name__}: {e})") \
+            from None
+    with f:
+        check_config(meta["config"], config, path, free, growable)
+        try:
+            arrays = {k[len("array/"):]: f[k] for k in f.files if k.startswith("array/")}
+        except Exception as e:
+            raise _Unreadable(f"{path}: not a readable checkpoint ({type(e).__name__}: {e})") \
+                from None
         trees = {}
-        for name, template in templates.items():
-            template = template(arrays) if callable(template) else template
-            leaves, treedef = jax.tree_util.tree_flatten(template)
-            trees[name] = jax.tree_util.tree_unflatten(
-                treedef, [jax.numpy.asarray(f[f"{name}/{i}"]) for i in range(len(leaves))])
+        try:
+            for name, template in templates.items():
+                template = template(arrays) if callable(template) else template
+                leaves, treedef = jax.tree_util.tree_flatten(template)
+                trees[name] = jax.tree_util.tree_unflatten(
+                    treedef, [jax.numpy.asarray(f[f"{name}/{i}"]) for i in range(len(leaves))])
+        except Exception as e:
+            raise _Unreadable(f"{path}: not a readable checkpoint ({type(e).__name__}: {e})") \
+                from None
     return trees, arrays, meta
 
 
-def check_config(saved: dict, config, path: str) -> None:
-    """ValueError naming the fields in which `saved` (a config's asdict) differs from
-    `config`."""
+def check_config(saved: dict, config, path: str, free=(), growable=()) -> None:
+    """ValueError naming the fields in which `saved` (a config's asdict) differs from `config`,
+    other than `free` ones and `growable` ones that grew."""
     current = json.loads(json.dumps(dataclasses.asdict(config)))
-    differ = sorted(k for k in set(saved) | set(current) if saved.get(k) != current.get(k))
+    differ = sorted(k for k in set(saved) | set(current) if saved.get(k) != current.get(k)
+                    and k not in free and not (k in growable and k in saved and k in current
+                                               and current[k] > saved[k]))
     if differ:
         fields = ", ".join(f"{k} (there {saved.get(k)!r}, here {current.get(k)!r})"
                            for k in differ)
@@ -88,12 +137,15 @@ class Recorder:
         self.history = list(history or [])
         self.progress_fn = progress_fn
         self.postfix, self.postfix_every = postfix, max(postfix_every, 1)
-        self.pending = None
-        self.bar = tqdm(total=total, initial=initial, desc=desc, disable=not progress,
-                        leave=False)
+        self.pending, self.desc = None, desc
+        # The first step compiles (seconds to a minute): say so instead of a wild estimate.
+        self.bar = tqdm(total=total, initial=initial, desc=f"{desc} (compiling)",
+                        disable=not progress, leave=False)
 
     def push(self, done: int, metrics: dict) -> None:
         """Metrics (device arrays) of the step that brought the count to `done`."""
+        if self.pending is None and not self.history:
+            self.bar.set_description(self.desc)
         self.flush()
         self.pending = (done, metrics)
 

@@ -21,7 +21,7 @@ from typing import Callable, Optional
 
 from gae_jax import cli
 from gae_jax.fit.config import ReconstructConfig
-from gae_jax.fit.fit import fit
+from gae_jax.fit.fit import CHECKPOINT_NAME, fit
 from gae_jax.model import avatar_io
 from gae_jax.scene.load import SceneConfig, SCENE_HELP, load_scene
 from gae_jax.scene.types import Scene, stacked_params, training_frames
@@ -76,6 +76,7 @@ def parser() -> argparse.ArgumentParser:
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True, help="output folder (the avatar)")
     p.add_argument("--resume", action="store_true", help="continue from the folder's checkpoint")
+    p.add_argument("--overwrite", action="store_true", help="replace an avatar already in --out")
     cli.add_config_flags(p, SceneConfig, SCENE_HELP, "scene")
     cli.add_config_flags(p, ReconstructConfig, HELP, "reconstruction")
     return p
@@ -87,6 +88,8 @@ def main(argv=None) -> int:
 
     def prepare():
         loaded["config"] = ReconstructConfig(**cli.given(args, ReconstructConfig))
+        cli.check_run_folder(args.out, args.resume, args.overwrite, CHECKPOINT_NAME,
+                             marker="reconstruct.json")
         source = SceneConfig(**cli.given(args, SceneConfig))
         loaded["scene"] = load_scene(source, progress=True)
         return 0

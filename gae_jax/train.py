@@ -22,6 +22,7 @@ import time
 from typing import Callable, Optional
 
 import jax
+from tqdm import tqdm
 
 from gae_jax import cli, instructions
 from gae_jax.edit import config as edit_config
@@ -34,7 +35,7 @@ from gae_jax.fit.fit import fit
 from gae_jax.model import avatar_io
 from gae_jax.scene.load import SCENE_HELP, SceneConfig, load_scene
 from gae_jax.scene.synthetic import scene_fingerprint
-from gae_jax.util.fileio import atomic_write_bytes
+from gae_jax.util.fileio import PlyError, atomic_write_bytes
 
 
 def cache_dir() -> str:
@@ -49,10 +50,15 @@ def original_avatar(scene, iterations: int, progress: bool):
     settings = hashlib.sha256(json.dumps(dataclasses.asdict(config), sort_keys=True).encode())
     path = os.path.join(cache_dir(), f"avatar-{scene_fingerprint(scene)}-"
                                      f"{settings.hexdigest()[:12]}.ply")
-    if not os.path.isfile(path):
-        fitted, _ = fit(scene, config, progress=progress)
-        os.makedirs(os.path.dirname(path), exist_ok=True)
-        avatar_io.save_avatar_ply(fitted, path)
+    if os.path.isfile(path):
+        try:
+            return avatar_io.load_bound_avatar(path, scene.face_regions)
+        except (PlyError, OSError) as e:
+            print(f"warning: the cached avatar is unreadable ({e}); reconstructing it",
+                  file=sys.stderr)
+    fitted, _ = fit(scene, config, progress=progress)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    avatar_io.save_avatar_ply(fitted, path)
     return avatar_io.load_bound_avatar(path, scene.face_regions)
 
 
@@ -72,10 +78,12 @@ def check_inputs(config: EditConfig) -> None:
 def run(config: EditConfig, workdir: str, scene=None, original=None, resume: bool = False,
         progress: bool = True, video: bool = True,
         progress_fn: Optional[Callable[[int, dict], None]] = None,
-        scene_config: SceneConfig = SceneConfig(), timings: Optional[dict] = None) -> dict:
+        scene_config: SceneConfig = SceneConfig(), timings: Optional[dict] = None,
+        keep_checkpoint: bool = False) -> dict:
     """The whole job into `workdir`; returns the metrics written to `metrics.json`. `scene` and
     `original` default to `load_scene(scene_config)` and its cached reconstruction; `timings`
-    holds what the caller already spent (the CLI's loading)."""
+    holds what the caller already spent (the CLI's loading). A finished run removes its
+    checkpoint unless `keep_checkpoint`."""
     os.makedirs(workdir, exist_ok=True)
     timings = dict(timings or {})
     t0 = time.perf_counter()
@@ -86,18 +94,27 @@ def run(config: EditConfig, workdir: str, scene=None, original=None, resume: boo
     timings["setup_s"] = round(time.perf_counter() - t0, 1)
     t1 = time.perf_counter()
     edited, history = edit.edit_avatar(session, workdir, resume=resume, progress=progress,
-                                       progress_fn=progress_fn)
+                                       progress_fn=progress_fn, keep_checkpoint=keep_checkpoint)
     timings["edit_s"] = round(time.perf_counter() - t1, 1)
     t2 = time.perf_counter()
+    bar = tqdm(total=4, desc="outputs: avatar files", disable=not progress, leave=False)
     outputs.write_avatar_files(session, edited, workdir)
+    bar.update(1)
+    bar.set_description("outputs: grid")
     outputs.write_grid(session, edited, os.path.join(workdir, "grid.png"),
                        jax.random.PRNGKey(99))
+    bar.update(1)
     if video:
+        bar.set_description("outputs: video")
         outputs.write_video(session, edited, os.path.join(workdir, "reenactment.mp4"))
+    bar.update(1)
+    bar.set_description("evaluation")
     evalset = truth.build(scene, config.prompt)
     truth.save(evalset, os.path.join(workdir, truth.FILE_NAME))
     scores = score.evaluate_avatars(evalset, edited, original, session.rig.tile_capacity,
                                     session.step_config.blend, config.clip_folder)
+    bar.update(1)
+    bar.close()
     timings["outputs_and_evaluation_s"] = round(time.perf_counter() - t2, 1)
     timings["total_s"] = round(time.perf_counter() - t0 + timings.get("load_s", 0.0), 1)
     metrics = dict(config=dataclasses.asdict(config), scene=dataclasses.asdict(scene_config),
@@ -114,14 +131,17 @@ def parser() -> argparse.ArgumentParser:
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("--preset", default="fast", choices=list(edit_config.PRESETS),
                    help="starting settings; flags override them")
-    p.add_argument("--out", default="runs/edit", help="run folder")
+    p.add_argument("--out", default="runs/edit", help="run folder (default: runs/edit)")
     p.add_argument("--avatar", default="", help="folder with the original avatar's "
                    "point_cloud.ply (GaussianAvatars); empty: reconstruct it (cached)")
     p.add_argument("--resume", action="store_true", help="continue from the run folder's "
                    "checkpoint")
+    p.add_argument("--overwrite", action="store_true", help="replace a run already in --out")
+    p.add_argument("--keep-checkpoint", action="store_true", help="keep the edit checkpoint of "
+                   "a finished run (~13 MB), so that --resume --iterations N can extend it")
     p.add_argument("--no-video", action="store_true", help="skip the MP4")
     cli.add_config_flags(p, SceneConfig, SCENE_HELP, "scene")
-    cli.add_config_flags(p, EditConfig, edit_config.HELP, "edit")
+    cli.add_config_flags(p, EditConfig, edit_config.HELP, "edit", edit_config.CHOICES)
     return p
 
 
@@ -132,6 +152,7 @@ def main(argv=None) -> int:
     def prepare():
         start = time.perf_counter()
         config = edit_config.preset(args.preset, **cli.given(args, EditConfig))
+        cli.check_run_folder(args.out, args.resume, args.overwrite, edit.CHECKPOINT)
         check_inputs(config)
         scene_config = SceneConfig(**cli.given(args, SceneConfig))
         if scene_config.data and not args.avatar and config.reconstruct_iterations:
@@ -150,7 +171,8 @@ def main(argv=None) -> int:
         return 2
     metrics = run(inputs["config"], args.out, inputs["scene"], inputs["original"],
                   resume=args.resume, video=not args.no_video,
-                  scene_config=inputs["scene_config"], timings=inputs["timings"])
+                  scene_config=inputs["scene_config"], timings=inputs["timings"],
+                  keep_checkpoint=args.keep_checkpoint)
     print(report.summary_table(metrics["evaluation"]))
     print(json.dumps(dict(out=args.out, timings=metrics["timings"]), indent=1))
     return 0

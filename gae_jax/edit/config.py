@@ -15,6 +15,10 @@ from gae_jax.edit import gan
 from gae_jax.render import wabe
 
 
+CHOICES = dict(editor=("semantic", "style", "ip2p"), editor_keeps=("render", "original"),
+               blend=wabe.MODES, pair_mode=gan.PAIR_MODES, gradient_mask=("none", "code"))
+
+
 @dataclasses.dataclass(frozen=True)
 class EditConfig:
     """Settings of one edit (every field is a command-line flag)."""
@@ -47,10 +51,7 @@ class EditConfig:
     seed: int = 0
 
     def __post_init__(self):
-        choices = dict(editor=("semantic", "style", "ip2p"), editor_keeps=("render", "original"),
-                       blend=wabe.MODES, pair_mode=gan.PAIR_MODES,
-                       gradient_mask=("none", "code"))
-        for field, allowed in choices.items():
+        for field, allowed in CHOICES.items():
             if getattr(self, field) not in allowed:
                 raise ValueError(f"{field} must be one of {allowed}, got "
                                  f"{getattr(self, field)!r}")
@@ -92,8 +93,8 @@ HELP = {
     "adam_eps": "Adam epsilon: gradients well below it barely move a parameter",
     "d_lr": "discriminator Adam learning rate",
     "reconstruct_iterations": "steps of the original avatar's reconstruction when no --avatar "
-                              "is given (cached; 300, not ReconstructConfig's 400, to keep the "
-                              "cold start short)",
+                              "is given (300, not ReconstructConfig's 400, to keep the cold "
+                              "start short; a new value reconstructs and caches a new avatar)",
     "checkpoint_every": "iterations between atomic checkpoints (0: none)",
     "seed": "random seed",
 }

@@ -27,6 +27,9 @@ from gae_jax.scene import rig as rigs
 from gae_jax.scene.types import Scene, posed_vertices, training_frames
 
 CHECKPOINT = "edit_checkpoint.npz"
+# Fields a resumed run may change: they do not change what the finished iterations computed.
+RESUME_FREE = ("checkpoint_every", "clip_folder")
+RESUME_GROWABLE = ("iterations",)  # more iterations extend a run
 
 
 @dataclasses.dataclass
@@ -78,7 +81,8 @@ def _save(path, state, sampler: EditSampler, history, config):
 
 
 def _load(path, template, sampler: EditSampler, config):
-    trees, arrays, meta = loop.load_checkpoint(path, dict(state=template), config)
+    trees, arrays, meta = loop.load_checkpoint(path, dict(state=template), config,
+                                               free=RESUME_FREE, growable=RESUME_GROWABLE)
     for store, name in ((sampler.cache, "cache"), (sampler.dataset, "dataset")):
         keys = arrays[f"{name}/keys"]
         if len(keys):
@@ -89,8 +93,10 @@ def _load(path, template, sampler: EditSampler, config):
 
 def edit_avatar(session: Session, out_dir: Optional[str] = None, resume: bool = False,
                 progress: bool = False, stop_after: Optional[int] = None,
-                progress_fn=None):
-    """Runs the loop; returns (edited Avatar, history). Checkpoints into `out_dir`.
+                progress_fn=None, keep_checkpoint: bool = True):
+    """Runs the loop; returns (edited Avatar, history). Checkpoints into `out_dir` every
+    `checkpoint_every` iterations; a run that completes removes them unless `keep_checkpoint`
+    (a kept checkpoint lets `resume` extend the run with more iterations).
 
     `stop_after` ends the run early (as an interruption would) after that many iterations.
     With `batch` > 1 and several devices, the batch is split over a ("data",) mesh and the
@@ -122,6 +128,13 @@ def edit_avatar(session: Session, out_dir: Optional[str] = None, resume: bool = 
             _save(path, state, sampler, recorder.history, config)
         if stop_after is not None and done >= stop_after:
             break
+    finished = int(state.step) == config.iterations
+    if path and finished and keep_checkpoint and config.checkpoint_every and \
+            config.iterations % config.checkpoint_every:
+        recorder.flush()
+        _save(path, state, sampler, recorder.history, config)  # so that it can be extended
     history = recorder.close()
+    if path and finished and not keep_checkpoint:
+        loop.remove_checkpoint(path)
     params = jax.tree_util.tree_map(jnp.asarray, jax.device_get(state.params))
     return session.original.with_params(params), history

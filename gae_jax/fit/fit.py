@@ -77,7 +77,7 @@ def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
     history, capacity = [], config.tile_capacity
     if resume and path and os.path.isfile(path):
         trees, arrays, meta = loop.load_checkpoint(
-            path, dict(state=_checkpoint_template(config)), config)
+            path, dict(state=_checkpoint_template(config)), config, free=("checkpoint_every",))
         state, history, capacity = trees["state"], meta["history"], meta["tile_capacity"]
         fixed = av.Avatar(binding=jnp.asarray(arrays["binding"]),
                           regions=jnp.asarray(arrays["regions"]), **state.params)

@@ -108,14 +108,17 @@ def save_flame_params(path: str, shape, frames: FlameParams, static_offset=None)
 def load_flame_params(path: str):
     """Reads flame_param.npz -> (shape (S,), FlameParams with a leading frame axis)."""
     try:
-        f = np.load(path, allow_pickle=False)
-    except Exception as exc:
-        raise ValueError(f"{path}: not a readable .npz ({exc})") from exc
-    with f:
-        missing = [k for k in ("shape",) + FLAME_PARAM_KEYS if k not in f.files]
-        if missing:
-            raise ValueError(f"{path}: missing keys {missing}")
-        arr = {k: np.asarray(f[k], np.float32) for k in f.files}
+        with np.load(path, allow_pickle=False) as f:
+            arr = {k: np.asarray(f[k], np.float32) for k in f.files}
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: no such file") from None
+    except Exception as exc:  # truncated zip, bad CRC, unparsable member
+        raise ValueError(f"{path}: not a readable .npz ({type(exc).__name__}: {exc})") from None
+    missing = [k for k in ("shape",) + FLAME_PARAM_KEYS if k not in arr]
+    if missing:
+        raise ValueError(f"{path}: missing keys {missing}")
+    if arr["expr"].ndim != 2:
+        raise ValueError(f"{path}: 'expr' must have shape (T, E), got {arr['expr'].shape}")
     t = arr["expr"].shape[0]
     for key, width in (("rotation", 3), ("neck_pose", 3), ("jaw_pose", 3), ("eyes_pose", 6),
                        ("translation", 3)):
@@ -126,6 +129,8 @@ def load_flame_params(path: str):
         if not np.all(np.isfinite(value)):
             raise ValueError(f"{path}: '{key}' contains NaN or infinite values")
     offset = arr.get("static_offset")
+    if offset is not None and offset.ndim != 3:
+        raise ValueError(f"{path}: 'static_offset' must have shape (1, V, 3), got {offset.shape}")
     frames = FlameParams(
         shape=jnp.broadcast_to(jnp.asarray(arr["shape"].reshape(-1)), (t, arr["shape"].size)),
         expr=jnp.asarray(arr["expr"]), rotation=jnp.asarray(arr["rotation"]),

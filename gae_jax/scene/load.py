@@ -62,7 +62,8 @@ SCENE_HELP = dict(
          "empty: the embedded synthetic scene",
     flame_model="FLAME model file (.pkl or gae_jax .npz) posing --data; empty: the embedded head",
     flame_masks="FLAME_masks.pkl naming the FLAME model's regions (lips, eyeballs, scalp)",
-    size="image size of the embedded scene (pixels; --data keeps its own)")
+    size="image size of the embedded scene (pixels; --data keeps its own; a new size builds and "
+         "caches a new scene, about a minute at 128 px, and reconstructs its avatar)")
 
 
 def load_scene(source: SceneConfig = SceneConfig(), progress: bool = False) -> Scene:

@@ -23,6 +23,7 @@ import hashlib
 import io
 import json
 import os
+import sys
 
 import numpy as np
 
@@ -214,12 +215,9 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
     held_out = (HELD_OUT_CAMERA % num_cameras,)
     train = tuple(i for i in range(num_cameras) if i not in held_out)
 
-    images, regions = {}, {}
-    if os.path.isfile(path):
-        with np.load(path) as f:
-            for name in sequences:
-                images[name], regions[name] = f[f"images/{name}"], f[f"regions/{name}"]
-    else:
+    images, regions = _read_cache(path, sequences, (num_cameras, frames_per_sequence, size))
+    if images is None:
+        images, regions = {}, {}
         total = sum(s.num_frames for s in sequences.values())
         bar = _progress(total, "ground truth frames", progress)
         for name, seq in sequences.items():
@@ -256,6 +254,26 @@ def _progress(total, desc, enabled):
     from tqdm import tqdm
 
     return tqdm(total=total, desc=desc, disable=not enabled, leave=False)
+
+
+def _read_cache(path, sequences, shape):
+    """(images, regions) from a cached scene, or (None, None) when there is none or it is
+    unreadable (then it says so in one line and the scene is rebuilt)."""
+    if not os.path.isfile(path):
+        return None, None
+    cameras, frames, size = shape
+    try:
+        images, regions = {}, {}
+        with np.load(path) as f:
+            for name in sequences:
+                images[name], regions[name] = f[f"images/{name}"], f[f"regions/{name}"]
+                if images[name].shape != (cameras, frames, size, size, 3):
+                    raise ValueError(f"images/{name} has shape {images[name].shape}")
+        return images, regions
+    except Exception as e:  # truncated zip, flipped bytes, missing member: rebuild
+        print(f"warning: the cached scene {path} is unreadable ({type(e).__name__}: {e}); "
+              "rebuilding it", file=sys.stderr)
+        return None, None
 
 
 def _save_cache(path, images, regions):

@@ -134,3 +134,20 @@ def stacked_params(scene: Scene, names, identity: str = "A") -> flame.FlameParam
     frames = [scene.sequences[n].params(scene.shapes[identity], t) for n in names
               for t in range(scene.sequences[n].num_frames)]
     return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
+
+
+def interpolated_vertices(scene: Scene, name: str, per_frame: int,
+                          identity: str = "A") -> np.ndarray:
+    """((T - 1) per_frame + 1, V, 3) mesh vertices of a sequence with `per_frame` steps between
+    consecutive frames, FLAME parameters interpolated linearly (a smooth drive for videos)."""
+    seq = scene.sequences[name]
+    times = np.linspace(0, seq.num_frames - 1, (seq.num_frames - 1) * per_frame + 1)
+    lbs = jax.jit(flame.lbs)
+    out = []
+    for x in times:
+        lo = int(np.floor(x))
+        hi, w = min(lo + 1, seq.num_frames - 1), x - lo
+        a, b = seq.params(scene.shapes[identity], lo), seq.params(scene.shapes[identity], hi)
+        mixed = jax.tree_util.tree_map(lambda p, q: (1 - w) * p + w * q, a, b)
+        out.append(np.asarray(lbs(scene.model, mixed)))
+    return np.stack(out)

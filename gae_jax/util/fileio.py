@@ -65,21 +65,31 @@ def read_ply(path: str) -> dict:
     if "format binary_little_endian 1.0" not in lines:
         raise PlyError(f"{path}: only binary_little_endian .ply files are supported")
     count, fields, in_vertex = None, [], False
-    for line in lines:
+    for number, line in enumerate(lines):
         parts = line.split()
-        if parts[:1] == ["element"]:
-            in_vertex = parts[1] == "vertex"
-            if in_vertex:
-                count = int(parts[2])
-            elif count is None:
-                raise PlyError(f"{path}: elements before 'vertex' are not supported")
-        elif parts[:1] == ["property"] and in_vertex:
-            if parts[1] == "list" or parts[1] not in PLY_TYPES:
-                raise PlyError(f"{path}: unsupported property type in '{line}'")
-            fields.append((parts[2], PLY_TYPES[parts[1]]))
+        try:
+            if parts[:1] == ["element"]:
+                in_vertex = parts[1] == "vertex"
+                if in_vertex:
+                    count = int(parts[2])
+                    if count < 0:
+                        raise ValueError("negative count")
+                elif count is None:
+                    raise PlyError(f"{path}: elements before 'vertex' are not supported")
+            elif parts[:1] == ["property"] and in_vertex:
+                if parts[1] == "list" or parts[1] not in PLY_TYPES:
+                    raise PlyError(f"{path}: unsupported property type in '{line}'")
+                fields.append((parts[2], PLY_TYPES[parts[1]]))
+        except (IndexError, ValueError) as e:
+            if isinstance(e, PlyError):
+                raise
+            raise PlyError(f"{path}: malformed header line {number + 1}: {line!r}") from None
     if count is None:
         raise PlyError(f"{path}: no 'vertex' element")
-    dtype = np.dtype(fields)
+    try:
+        dtype = np.dtype(fields)
+    except (TypeError, ValueError) as e:
+        raise PlyError(f"{path}: malformed properties ({e})") from None
     body = data[end + len(b"end_header\n"):]
     if len(body) < count * dtype.itemsize:
         raise PlyError(f"{path}: truncated: expected {count} vertices of {dtype.itemsize} bytes, "
