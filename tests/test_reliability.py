@@ -201,3 +201,40 @@ def test_corruption_sweep_over_every_file_the_project_reads(small, tmp_path):
                 np.testing.assert_array_equal(images[name], scene.images[name], f"case {i}")
     scene_file.write_bytes(good)
 
+
+
+def test_help_shows_real_defaults_and_choices():
+    text = train.parser().format_help()
+    assert "--editor {semantic,style,ip2p}" in text and "--blend {standard,wabe,wabe_grad}" in text
+    assert "(default: 100)" in text and "(default: 0.3)" in text and "(default: None)" not in text
+    assert "builds and caches a new scene" in text
+
+
+def test_the_bar_says_compiling_until_the_first_step_is_done():
+    recorder = loop.Recorder("edit", 3, progress=False)
+    assert recorder.bar.desc.startswith("edit (compiling)")
+    recorder.push(1, dict(loss=np.float32(1.0)))
+    assert recorder.bar.desc.startswith("edit") and "compiling" not in recorder.bar.desc
+    assert recorder.close() == [dict(loss=1.0)]
+
+
+def test_the_video_is_labelled_smooth_and_warns_of_nothing(small, tmp_path):
+    import warnings
+
+    import imageio.v2 as imageio
+
+    from gae_jax.edit import outputs
+
+    session = session_of(small, iterations=1)
+    path = str(tmp_path / "reenactment.mp4")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        outputs.write_video(session, session.original, path)
+    assert not [w for w in caught if "fork" in str(w.message)]
+    reader = imageio.get_reader(path)
+    frames = [f for f in reader]
+    assert reader.get_meta_data()["fps"] == 24
+    scene = session.scene
+    # two sequences of 2 frames, 3 steps between frames: 4 frames each; header + two panels
+    assert len(frames) == 2 * ((2 - 1) * 3 + 1)
+    assert frames[0].shape == (14 + scene.height, 2 * scene.width, 3)
