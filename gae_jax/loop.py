@@ -137,14 +137,18 @@ class Recorder:
         self.history = list(history or [])
         self.progress_fn = progress_fn
         self.postfix, self.postfix_every = postfix, max(postfix_every, 1)
-        self.pending, self.desc = None, desc
+        self.pending, self.desc, self.initial = None, desc, initial
         # The first step compiles (seconds to a minute): say so instead of a wild estimate.
         self.bar = tqdm(total=total, initial=initial, desc=f"{desc} (compiling)",
                         disable=not progress, leave=False)
 
     def push(self, done: int, metrics: dict) -> None:
         """Metrics (device arrays) of the step that brought the count to `done`."""
-        if self.pending is None and not self.history:
+        if self.pending is None and len(self.history) == 0 and not self.bar.disable:
+            # Restart the clock after compilation so that the rate and the estimate are the
+            # steps' own.
+            self.bar.reset()
+            self.bar.n = self.bar.last_print_n = self.initial
             self.bar.set_description(self.desc)
         self.flush()
         self.pending = (done, metrics)
