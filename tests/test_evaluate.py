@@ -34,6 +34,16 @@ def test_region_scores_equal_numpy_references():
     assert same["lpips"]["whole"] == pytest.approx(0.0, abs=1e-5)
 
 
+def test_rest_is_the_head_without_background_and_whole_is_everything():
+    regions = np.array([[-1, head.REGION_ID["skin"], head.REGION_ID["lips"]],
+                        [head.REGION_ID["hair"], head.REGION_ID["teeth"], -1]])
+    masks = metrics.region_masks(regions, "lips")
+    assert masks["whole"].all()
+    np.testing.assert_array_equal(masks["rest"], [[False, True, False], [True, False, False]])
+    np.testing.assert_array_equal(masks["edited"], regions == head.REGION_ID["lips"])
+    np.testing.assert_array_equal(masks["teeth"], regions == head.REGION_ID["teeth"])
+
+
 def test_flicker_closed_form():
     rng = np.random.default_rng(1)
     truth = rng.random((5, 8, 8, 3))
