@@ -79,29 +79,26 @@ class _Unreadable(Exception):
 
 def _load(path, templates, config, free, growable):
     try:
-        f = np.load(path)
-        meta = json.loads(bytes(f["meta"]).decode())
-    except Exception as e:  # truncated zip, bad JSON, missing member: all mean "unreadable"
-        raise _Unreadable(f"{path}: not a readable checkpoint ({type(e).__name__}: {e})") \
-            from None
-    with f:
-        check_config(meta["config"], config, path, free, growable)
-        try:
+        with np.load(path) as f:
+            meta = json.loads(bytes(f["meta"]).decode())
+            check_config(meta["config"], config, path, free, growable)
             arrays = {k[len("array/"):]: f[k] for k in f.files if k.startswith("array/")}
-        except Exception as e:
-            raise _Unreadable(f"{path}: not a readable checkpoint ({type(e).__name__}: {e})") \
-                from None
-        trees = {}
-        try:
+            trees = {}
             for name, template in templates.items():
                 template = template(arrays) if callable(template) else template
                 leaves, treedef = jax.tree_util.tree_flatten(template)
                 trees[name] = jax.tree_util.tree_unflatten(
                     treedef, [jax.numpy.asarray(f[f"{name}/{i}"]) for i in range(len(leaves))])
-        except Exception as e:
-            raise _Unreadable(f"{path}: not a readable checkpoint ({type(e).__name__}: {e})") \
-                from None
+    except _ConfigDiffers:
+        raise
+    except Exception as e:  # truncated zip, bad CRC or JSON, missing member: "unreadable"
+        raise _Unreadable(f"{path}: not a readable checkpoint ({type(e).__name__}: {e})") \
+            from None
     return trees, arrays, meta
+
+
+class _ConfigDiffers(ValueError):
+    """A readable checkpoint written with another config (never a reason to fall back)."""
 
 
 def check_config(saved: dict, config, path: str, free=(), growable=()) -> None:
@@ -114,8 +111,9 @@ def check_config(saved: dict, config, path: str, free=(), growable=()) -> None:
     if differ:
         fields = ", ".join(f"{k} (there {saved.get(k)!r}, here {current.get(k)!r})"
                            for k in differ)
-        raise ValueError(f"{path}: written by a run with a different {type(config).__name__}: "
-                         f"{fields}; use a new --out folder or the same flags")
+        raise _ConfigDiffers(f"{path}: written by a run with a different "
+                             f"{type(config).__name__}: {fields}; use a new --out folder or the "
+                             "same flags")
 
 
 class Recorder:

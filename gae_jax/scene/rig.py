@@ -11,6 +11,7 @@ evaluation, outputs) renders through it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -125,9 +126,10 @@ def required_capacity(params: dict, rig: Rig, cameras, frame: int = 0) -> int:
     return int(128 * math.ceil(1.25 * worst / 128))
 
 
+@functools.lru_cache(maxsize=None)
 def make_view_renderer(blend: wabe.Blend = wabe.standard()):
-    """Jitted `render(params, rig, frame, cam) -> (H, W, 3)` image (compiled once per rig
-    shape)."""
+    """Jitted `render(params, rig, frame, cam) -> (H, W, 3)` image, one per blend (so the grid,
+    the video and the evaluation share its compilations, one per rig shape)."""
     return fast_jit(lambda params, rig, frame, cam: render_bound(params, rig, frame, cam,
                                                                  blend=blend).image)
 
