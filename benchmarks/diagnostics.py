@@ -1,11 +1,12 @@
-"""The diagnostic runs behind the README's findings on the default edit, in one resumable script.
+"""The diagnostic runs behind the README's findings on the edit before region-aware editing (the
+`previous` preset, the default until then), in one resumable script.
 
     python benchmarks/diagnostics.py [--out benchmarks/results/diagnostics]
 
   * forward WABE on a layered avatar: the untouched reconstruction's PSNR against the truth on
     the held-out camera, rendered with standard blending and with the paper's WABE (beta 6), and
     its median opacity;
-  * Adam's epsilon: the default edit at adam_eps 1e-4 (default) and 1e-15 (the usual value);
+  * Adam's epsilon: the `previous` edit at adam_eps 1e-4 (its value) and 1e-15 (the usual one);
   * where the collateral damage comes from: the default at editor noise 0, the same with
     geometry frozen (colour-only edit), and the editor returning the original image outside the
     edited region (`--editor-keeps original`) at noise 0.3 and 0.
@@ -52,7 +53,7 @@ def main(argv=None) -> int:
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     bench = Bench(args.out + ".json")
     scene = synthetic.make_synthetic_scene(size=128, progress=False)
-    base = preset("fast", checkpoint_every=0, iterations=args.iterations)
+    base = preset("previous", checkpoint_every=0, iterations=args.iterations)
     original = original_avatar(scene, base.reconstruct_iterations, progress=False)
     pairs = training_frames(scene)[::4]
     opacity = 1 / (1 + np.exp(-np.asarray(original.opacity_logits)))
@@ -61,7 +62,8 @@ def main(argv=None) -> int:
                                          blend=blend), 2)
         for name, blend in (("standard", wabe.standard()), ("wabe_beta_6", wabe.wabe(6.0)))})
     for name, knobs in EDITS.items():
-        bench.run(name, preset("fast", checkpoint_every=0, iterations=args.iterations, **knobs),
+        bench.run(name, preset("previous", checkpoint_every=0, iterations=args.iterations,
+                               **knobs),
                   scene, original, extra=dict(knobs=knobs))
     bench.save(blending=blending)
     lines = ["# Diagnostics of the default edit", "",

@@ -54,14 +54,15 @@ class Bench:
         return self.evalsets[key]
 
     def run(self, name: str, config: EditConfig, scene, original, extra: dict | None = None,
-            evaluate: bool = True, on_edited=None) -> dict:
+            evaluate: bool = True, on_edited=None, editor=None) -> dict:
         """Edits with `config` (unless `name` is already recorded) and records the result;
-        `on_edited(avatar)` sees the edited avatar."""
+        `on_edited(avatar)` sees the edited avatar; `editor` replaces the config's 2D editor
+        (the oracle)."""
         if name in self.results:
             return self.results[name]
         session, fresh = self.session(config, scene, original)
         start = time.perf_counter()
-        edited, history = edit.edit_avatar(session)
+        edited, history = edit.edit_avatar(session, editor=editor)
         seconds = time.perf_counter() - start
         if on_edited is not None:
             on_edited(edited)
@@ -86,6 +87,22 @@ class Bench:
     def save(self, **meta):
         blob = dict(meta, variants=self.results)
         atomic_write_bytes(self.path, json.dumps(blob, indent=1).encode())
+
+
+def default_scene_and_avatar():
+    """The README's default scene (128 px) and its cached original avatar."""
+    from gae_jax.edit.config import preset
+    from gae_jax.scene import synthetic
+    from gae_jax.train import original_avatar
+
+    scene = synthetic.make_synthetic_scene(size=128, progress=False)
+    return scene, original_avatar(scene, preset("fast").reconstruct_iterations, progress=False)
+
+
+def write_report(path: str, text: str) -> None:
+    """Writes a study's Markdown (atomically) and prints it."""
+    atomic_write_bytes(path, text.encode())
+    print(text)
 
 
 def _jsonable(x):

@@ -77,3 +77,34 @@ def test_temporal_clips_are_consecutive_frames_at_one_camera(tmp_path):
 def test_evaluate_cli_refuses_a_folder_that_is_not_a_run(tmp_path, capsys):
     assert evaluate.main([str(tmp_path)]) == 2
     assert "metrics.json not found" in capsys.readouterr().err
+
+
+def test_drift_is_psnr_against_the_untouched_render_outside_the_dilated_edit():
+    rng = np.random.default_rng(1)
+    untouched = rng.random((2, 30, 30, 3))
+    ours = untouched.copy()
+    regions = np.full((2, 30, 30), head.REGION_ID["skin"])
+    regions[:, :, :3] = -1
+    regions[:, 10:14, 10:20] = head.REGION_ID["lips"]
+    regions[:, 22:25, 10:20] = head.REGION_ID["teeth"]
+    outside = metrics.outside_edit(regions, "lips", dilate=3)
+    lips = regions == head.REGION_ID["lips"]
+    # Outside = farther than 3 px (Chebyshev) from every lips pixel, by a loop.
+    ys, xs = np.nonzero(lips[0])
+    for y in range(30):
+        for x in range(30):
+            far = np.max(np.abs(np.stack([ys - y, xs - x])), 0).min() > 3
+            assert outside[0, y, x] == far
+    ours[lips] = 0.0  # the edit itself does not count
+    ours[:, 11, 7:10] += 0.1  # 1-3 px from the lips: inside the dilation, not counted
+    assert metrics.drift_scores(ours, untouched, regions, "lips")["whole"] == 99.0
+    teeth = regions == head.REGION_ID["teeth"]
+    ours[teeth] = np.clip(ours[teeth] + 0.05, 0, 1)
+    drift = metrics.drift_scores(ours, untouched, regions, "lips")
+    mse_teeth = np.mean((ours[teeth] - untouched[teeth]) ** 2)
+    assert drift["teeth"] == pytest.approx(10 * np.log10(1 / mse_teeth), abs=1e-3)
+    mse_all = np.mean((ours[outside] - untouched[outside]) ** 2)
+    assert drift["whole"] == pytest.approx(10 * np.log10(1 / mse_all), abs=1e-3)
+    assert drift["background"] == 99.0 and drift["eyes"] is None
+    style = metrics.outside_edit(regions, None, dilate=0)
+    np.testing.assert_array_equal(style, regions < 0)

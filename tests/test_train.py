@@ -12,6 +12,7 @@ import pytest
 from gae_jax import evaluate, train
 from gae_jax.edit import config as edit_config
 from gae_jax.edit import edit, sampler
+from gae_jax.edit import step as step_module
 from gae_jax.evaluation import protocols, truth
 from gae_jax.fit.config import ReconstructConfig
 from gae_jax.fit.fit import initial_avatar
@@ -66,6 +67,29 @@ def test_a_short_edit_turns_the_lips_and_leaves_the_teeth(base):
     assert teeth_change < 0.5 * blue_gain, (teeth_change, blue_gain)
 
 
+def test_auto_region_traces_the_edited_lips_and_resumes_with_its_votes(base, tmp_path):
+    """`--region auto` from the 2D edits alone: the traced Gaussians are the lips' (and a
+    fringe around them), never the hair; a resumed run reproduces the votes exactly."""
+    s = session_for(base, iterations=6, checkpoint_every=3, region="auto", editor_noise=0.3)
+    full, _ = edit.edit_avatar(s, str(tmp_path / "a"))
+    edit.edit_avatar(s, str(tmp_path / "b"), stop_after=4)
+    resumed, _ = edit.edit_avatar(s, str(tmp_path / "b"), resume=True)
+    for a, b in zip(jax.tree_util.tree_leaves(full), jax.tree_util.tree_leaves(resumed)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    sampler_ = edit.make_sampler(s)
+    params = s.original.trainable()
+    for i in range(6):
+        sampler_.batch(params, i, jax.random.PRNGKey(0))
+    chosen = sampler_.editable()
+    labels = np.asarray(s.original.regions)
+    lips = labels == head.REGION_ID["lips"]
+    assert chosen.sum() > 20
+    assert (chosen & lips).sum() / chosen.sum() > 0.7, (chosen & lips).sum() / chosen.sum()
+    assert not (chosen & (labels == head.REGION_ID["hair"])).any()
+    moved = np.asarray(full.colors != s.original.colors).reshape(len(labels), -1).any(1)
+    assert lips[moved].mean() > 0.7
+
+
 def test_step_compiles_once(base):
     s = session_for(base, iterations=3)
     edit.edit_avatar(s)
@@ -82,7 +106,7 @@ def test_resume_after_interruption_equals_the_uninterrupted_run(base, tmp_path):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert len(history) == len(full_history) == 6
     other = session_for(base, iterations=7, checkpoint_every=3, editor_noise=0.5, lr=2e-2)
-    with pytest.raises(ValueError, match=r"different EditConfig: lr \(there 0.01, here 0.02\);"):
+    with pytest.raises(ValueError, match=r"different EditConfig: lr \(there 0.05, here 0.02\);"):
         edit.edit_avatar(other, str(tmp_path / "b"), resume=True)
 
 
@@ -206,3 +230,23 @@ def test_run_writes_a_self_contained_folder_that_evaluate_rescores(base, tmp_pat
                 written[name][who]["psnr"]["whole"], abs=0.01)
         assert -1 <= again[name]["clip_s"] <= 1 and -1 <= again[name]["clip_c"] <= 1
     assert (out / "evaluation.md").read_text().startswith("| protocol |")
+
+
+
+def test_learning_rates_decay_to_their_final_fraction_and_stay():
+    config = edit_config.StepConfig.of(edit_config.preset("fast", lr=0.08, lr_final=0.25,
+                                                          lr_decay_steps=10))
+    opt = step_module.avatar_optimizer(config)
+    params = {k: np.zeros((1, 3), np.float32) for k in ("means", "quats", "log_scales",
+                                                          "colors")}
+    params["opacity_logits"] = np.zeros((1,), np.float32)
+    state = opt.init(params)
+    grads = jax.tree_util.tree_map(np.ones_like, params)
+    moves = []
+    for _ in range(25):
+        with jax.numpy_dtype_promotion("standard"):
+            updates, state = opt.update(grads, state, params)
+        moves.append(float(-updates["colors"][0, 0]))
+    # Adam's first step with a constant gradient moves by the rate itself.
+    expected = [0.08 * max(0.25 ** (t / 10), 0.25) for t in range(25)]
+    np.testing.assert_allclose(moves, expected, rtol=1e-4)

@@ -1,17 +1,20 @@
 """Settings of one edit (`EditConfig`, every field a flag of `python -m gae_jax.train`), the
 presets, and the small hashable `StepConfig` that the jitted step reads.
 
-Presets: `paper` (the paper's settings: forward WABE, all rates 1e-2, 1000 iterations), `fast`
-(the README default: WABE on the gradient), the ablations `wabe`, `no_wabe`, `no_adv`, `code`
-(the released code's gradient mask and pairs), and the baseline `in2n` (standard blending, no
-GAN, Instruct-NeRF2NeRF's dataset update).
+Presets: `paper` (the paper's settings: forward WABE, all rates 1e-2, 1000 iterations, no edit
+region), `fast` (the README default: WABE on the gradient, the prompt's region, targets
+composited over the unedited image), the ablations `wabe`, `no_wabe`, `no_adv`, `no_region`
+(every Gaussian may move), `previous` (the default before region-aware editing: no region, the
+editor keeping the render outside its edit, colour rate 1e-2 with Adam eps 1e-4, no decay),
+`code` (the released code's gradient mask and pairs), and the baseline `in2n` (standard
+blending, no GAN, Instruct-NeRF2NeRF's dataset update, no region).
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-from gae_jax.edit import gan
+from gae_jax.edit import gan, region
 from gae_jax.render import wabe
 
 
@@ -26,7 +29,7 @@ class EditConfig:
     prompt: str = "turn the lips blue"
     editor: str = "semantic"
     editor_noise: float = 0.3
-    editor_keeps: str = "render"
+    editor_keeps: str = "original"
     ip2p_folder: str = ""
     clip_folder: str = ""
     iterations: int = 100
@@ -37,14 +40,20 @@ class EditConfig:
     pair_mode: str = "paper"
     gradient_mask: str = "none"
     dataset_update: bool = False
+    region: str = "prompt"
+    change_threshold: float = 0.1
+    region_dilate: int = 2
+    region_blur: float = 1.0
     recon_weight: float = 10.0
     d_weight: float = 0.01
     g_weight: float = 0.01
     const_weight: float = 10.0
-    lr: float = 1e-2
+    lr: float = 5e-2
     lr_geometry: float = 1e-3
     lr_means: float = 1e-4
-    adam_eps: float = 1e-4
+    lr_final: float = 0.1
+    lr_decay_steps: int = 100
+    adam_eps: float = 1e-8
     d_lr: float = 1e-4
     reconstruct_iterations: int = 300
     checkpoint_every: int = 50
@@ -61,8 +70,17 @@ class EditConfig:
             raise ValueError(f"checkpoint_every must be >= 0, got {self.checkpoint_every}")
         if not 0 <= self.editor_noise <= 1:
             raise ValueError(f"editor_noise must be in [0, 1], got {self.editor_noise}")
+        if not 0 < self.lr_final <= 1:
+            raise ValueError(f"lr_final must be in (0, 1], got {self.lr_final}")
+        if self.lr_decay_steps < 1:
+            raise ValueError(f"lr_decay_steps must be >= 1, got {self.lr_decay_steps}")
         if self.beta < 0:
             raise ValueError(f"beta must be >= 0, got {self.beta}")
+        region.parse_region(self.region)
+        if not 0 < self.change_threshold < 1:
+            raise ValueError(f"change_threshold must be in (0, 1), got {self.change_threshold}")
+        if self.region_dilate < 0 or self.region_blur < 0:
+            raise ValueError("region_dilate and region_blur must be >= 0")
         if self.editor == "ip2p" and not self.ip2p_folder:
             raise ValueError("the ip2p editor needs --ip2p-folder (a local diffusers folder)")
 
@@ -83,6 +101,13 @@ HELP = {
     "pair_mode": "GAN pairs: paper (E_t, E_t-E_k) / (C_t, C_t-E_k), or code (released code)",
     "gradient_mask": "none, or code: only front Gaussians (first 10 per pixel), no mouth",
     "dataset_update": "Instruct-NeRF2NeRF dataset update (one image re-edited per iteration)",
+    "region": "where the edit may act: prompt (the region the instruction names, else auto), "
+              "auto (traced from the 2D edits), region names (lips, hair,brows, ...; from the "
+              "avatar's binding) or none (every Gaussian)",
+    "change_threshold": "auto region: an edit pixel votes 'changed' when it differs from the "
+                        "unedited image by more than this (3x3-blurred, any channel)",
+    "region_dilate": "pixels the region's 2D mask grows before compositing the target",
+    "region_blur": "sigma in pixels of the composited mask's soft edge",
     "recon_weight": "lambda_1 (L1 + 1 - SSIM)",
     "d_weight": "lambda_2 (discriminator loss)",
     "g_weight": "lambda_3 (generator loss)",
@@ -90,6 +115,9 @@ HELP = {
     "lr": "Adam learning rate of colours",
     "lr_geometry": "Adam learning rate of opacities, scales and rotations",
     "lr_means": "Adam learning rate of local positions",
+    "lr_final": "every learning rate decays exponentially to this fraction of itself over "
+                "lr_decay_steps iterations, then stays there (1: constant)",
+    "lr_decay_steps": "iterations of the learning-rate decay (see lr_final)",
     "adam_eps": "Adam epsilon: gradients well below it barely move a parameter",
     "d_lr": "discriminator Adam learning rate",
     "reconstruct_iterations": "steps of the original avatar's reconstruction when no --avatar "
@@ -102,13 +130,18 @@ HELP = {
 PRESETS = {
     "paper": dict(iterations=1000, blend="wabe", adversarial=True, pair_mode="paper",
                   recon_weight=10.0, d_weight=0.01, g_weight=0.01, const_weight=10.0, lr=1e-2,
-                  lr_geometry=1e-2, lr_means=1e-2),
+                  lr_geometry=1e-2, lr_means=1e-2, lr_final=1.0, adam_eps=1e-15, region="none",
+                  editor_keeps="render"),
     "fast": dict(),
+    "no_region": dict(region="none"),
+    "previous": dict(region="none", editor_keeps="render", lr=1e-2, lr_final=1.0,
+                     adam_eps=1e-4),
     "wabe": dict(blend="wabe"),
     "no_wabe": dict(blend="standard"),
     "no_adv": dict(adversarial=False),
-    "code": dict(blend="standard", pair_mode="code", gradient_mask="code"),
-    "in2n": dict(blend="standard", adversarial=False, dataset_update=True),
+    "code": dict(blend="standard", pair_mode="code", gradient_mask="code", region="none",
+                 editor_keeps="render"),
+    "in2n": dict(blend="standard", adversarial=False, dataset_update=True, region="none"),
 }
 
 
@@ -133,6 +166,8 @@ class StepConfig:
     lr: float
     lr_geometry: float
     lr_means: float
+    lr_final: float
+    lr_decay_steps: int
     adam_eps: float
     d_lr: float
 

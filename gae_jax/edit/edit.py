@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gae_jax import loop
+from gae_jax.edit import region
 from gae_jax.edit.config import EditConfig, StepConfig
 from gae_jax.edit.sampler import EditSampler, data_mesh, put_batch, replicate
 from gae_jax.edit.step import EditState, initial_state, make_edit_step, make_preview
@@ -59,9 +60,10 @@ def setup(config: EditConfig, scene: Scene, original: av.Avatar, step=None,
                    step or make_edit_step(step_config), preview or make_preview(step_config.blend))
 
 
-def make_sampler(session: Session) -> EditSampler:
+def make_sampler(session: Session, editor=None) -> EditSampler:
     s = session
-    return EditSampler(s.config, s.scene, s.pairs, s.preview, s.rig, s.canonical)
+    return EditSampler(s.config, s.scene, s.pairs, s.preview, s.rig, s.canonical,
+                       (region.make_tracer(), region.make_coverage()), editor)
 
 
 def fresh_state(session: Session) -> EditState:
@@ -77,6 +79,7 @@ def _save(path, state, sampler: EditSampler, history, config):
         arrays[f"{name}/keys"] = np.asarray(keys, np.int64).reshape(-1, 2)
         if keys:
             arrays[f"{name}/images"] = np.stack([store[k] for k in keys])
+    arrays["region/votes"] = sampler.votes
     loop.save_checkpoint(path, dict(state=state), arrays, config, history=history)
 
 
@@ -88,23 +91,26 @@ def _load(path, template, sampler: EditSampler, config):
         if len(keys):
             images = arrays[f"{name}/images"]
             store.update({(int(a), int(b)): images[j] for j, (a, b) in enumerate(keys)})
+    sampler.votes = np.asarray(arrays["region/votes"], np.float64)
     return trees["state"], meta["history"]
 
 
 def edit_avatar(session: Session, out_dir: Optional[str] = None, resume: bool = False,
                 progress: bool = False, stop_after: Optional[int] = None,
-                progress_fn=None, keep_checkpoint: bool = True):
+                progress_fn=None, keep_checkpoint: bool = True, editor=None):
     """Runs the loop; returns (edited Avatar, history). Checkpoints into `out_dir` every
     `checkpoint_every` iterations; a run that completes removes them unless `keep_checkpoint`
     (a kept checkpoint lets `resume` extend the run with more iterations).
 
     `stop_after` ends the run early (as an interruption would) after that many iterations.
+    `editor` replaces the config's 2D editor by an object with the editors' `edit` protocol
+    (the benchmarks' oracle).
     With `batch` > 1 and several devices, the batch is split over a ("data",) mesh and the
     state and rig are replicated.
     """
     config = session.config
     state = fresh_state(session)
-    sampler = make_sampler(session)
+    sampler = make_sampler(session, editor)
     history: list = []
     path = os.path.join(out_dir, CHECKPOINT) if out_dir else None
     if resume and path and os.path.isfile(path):
@@ -120,7 +126,8 @@ def edit_avatar(session: Session, out_dir: Optional[str] = None, resume: bool = 
                                                     psnr=f"{h['psnr_to_edit']:.1f}"))
     for i in range(start, config.iterations):
         batch = put_batch(sampler.batch(state.params, i, key), mesh)
-        state, metrics = session.step(state, rig, batch)
+        editable = replicate(jnp.asarray(sampler.editable()), mesh)
+        state, metrics = session.step(state, rig, batch, editable)
         recorder.push(i + 1, metrics)
         done = i + 1
         if path and config.checkpoint_every and done % config.checkpoint_every == 0:

@@ -1,10 +1,12 @@
 """What an edit run leaves for people and tools: a labelled grid, a reenactment video, and the
 avatars as GaussianAvatars folders (plus a posed 3DGS `.ply` that splat viewers open).
 
-Grid columns: the untouched avatar, the editor's 2D edit of that render (what the loop learns
-from), ours (the edited avatar), and the truth (the ideal edit on the synthetic scene, the
-capture on a user's data); rows: frames x cameras of the self-reenactment protocol (the
-training frames when the scene has none).
+Grid columns: the untouched avatar, the editor's 2D edit of that render composited into it as
+the loop's targets are (`region`), ours (the edited avatar), and the truth (the ideal edit on
+the synthetic scene, the capture on a user's data); rows: frames x cameras of the
+self-reenactment protocol (the training frames when the scene has none). A title line carries
+the prompt and the edit region, whose outline (yellow) is drawn on the untouched render and the
+2D target (ours and the truth stay clean to compare); images are shown at twice the render size.
 """
 
 from __future__ import annotations
@@ -16,10 +18,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gae_jax.edit import region as edit_region
 from gae_jax.edit.edit import Session, make_sampler
 from gae_jax.evaluation import protocols, truth
 from gae_jax.model import avatar as av
-from gae_jax.model import avatar_io
+from gae_jax.model import avatar_io, head
 from gae_jax.scene import rig as rigs
 from gae_jax.scene.types import interpolated_vertices, posed_vertices, stacked_params
 from gae_jax.util.fileio import atomic_write_bytes, encode_png
@@ -29,13 +32,31 @@ def to_uint8(x) -> np.ndarray:
     return (np.clip(np.asarray(x, np.float64), 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
-def _label(width: int, text: str) -> np.ndarray:
+def _label(width: int, text: str, scale: float = 0.33) -> np.ndarray:
     import cv2
 
-    strip = np.full((14, width, 3), 255, np.uint8)
-    cv2.putText(strip, text, (3, 10), cv2.FONT_HERSHEY_SIMPLEX, 0.33, (0, 0, 0), 1,
-                cv2.LINE_AA)
+    height = int(round(42 * scale))
+    strip = np.full((height, width, 3), 255, np.uint8)
+    cv2.putText(strip, text, (3, int(height * 0.72)), cv2.FONT_HERSHEY_SIMPLEX, scale,
+                (0, 0, 0), 1, cv2.LINE_AA)
     return strip
+
+
+GRID_ZOOM = 2
+OUTLINE = (255, 220, 0)
+
+
+def _zoom_outlined(image: np.ndarray, mask) -> np.ndarray:
+    """(H, W, 3) uint8 -> (2H, 2W, 3), with the (H, W) bool mask's outline drawn if given."""
+    import cv2
+
+    big = cv2.resize(image, None, fx=GRID_ZOOM, fy=GRID_ZOOM, interpolation=cv2.INTER_NEAREST)
+    if mask is not None and mask.any():
+        m = cv2.resize(mask.astype(np.uint8), None, fx=GRID_ZOOM, fy=GRID_ZOOM,
+                       interpolation=cv2.INTER_NEAREST)
+        contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        big = cv2.drawContours(np.ascontiguousarray(big), contours, -1, OUTLINE, 1)
+    return big
 
 
 def write_grid(session: Session, edited: av.Avatar, path: str, key) -> None:
@@ -55,22 +76,37 @@ def write_grid(session: Session, edited: av.Avatar, path: str, key) -> None:
     original = rigs.render_views(render, s.original.trainable(), rig, protocol.cameras)
     ours = rigs.render_views(render, edited.trainable(), rig, protocol.cameras)
     sampler = make_sampler(s)
+    region = edit_region.parse_region(s.config.region, s.config.prompt)
     rows = []
     for p, (seq, t) in enumerate(protocol.pairs):
         for k, cam in enumerate(protocol.cameras):
-            _, regions, coords = s.preview(s.original.trainable(), rig, jnp.int32(cam),
-                                           jnp.int32(p), s.canonical)
-            edit = sampler.editor.edit(original[p, k], original[p, k], s.config.prompt,
-                                       jax.random.fold_in(key, p * 97 + k),
-                                       dict(regions=np.asarray(regions),
-                                            canonical=np.asarray(coords)))
-            rows.append(np.concatenate([to_uint8(original[p, k]), to_uint8(edit),
-                                        to_uint8(ours[p, k]), reference.truth[p, k]], axis=1))
+            untouched = original[p, k]
+            _, labels, coords = s.preview(s.original.trainable(), rig, jnp.int32(cam),
+                                          jnp.int32(p), s.canonical)
+            labels = np.asarray(labels)
+            edit = np.clip(sampler.editor.edit(
+                untouched, untouched, s.config.prompt, jax.random.fold_in(key, p * 97 + k),
+                dict(regions=labels, canonical=np.asarray(coords), view=(cam, seq, t))), 0, 1)
+            outline = None
+            if region == ("auto",):
+                outline = edit_region.change_mask(edit, untouched, s.config.change_threshold)
+            elif region != ("none",):
+                outline = np.isin(labels, [head.REGION_ID[n] for n in region])
+            if outline is not None:
+                mask = edit_region.soft_mask(outline.astype(np.float32), s.config.region_dilate,
+                                          s.config.region_blur)
+                edit = edit_region.composite(edit, untouched, mask)
+            cells = [_zoom_outlined(to_uint8(x), outline) for x in (untouched, edit)]
+            cells += [_zoom_outlined(to_uint8(ours[p, k]), None),
+                      _zoom_outlined(reference.truth[p, k], None)]
+            rows.append(np.concatenate(cells, axis=1))
     width = rows[0].shape[1] // 4
     kind = "ideal edit" if s.scene.kind == "synthetic" else "capture"
-    header = np.concatenate([_label(width, t) for t in ("original", "2D edit", "ours", kind)],
-                            axis=1)
-    atomic_write_bytes(path, encode_png(np.concatenate([header] + rows, axis=0)))
+    header = np.concatenate([_label(width, t, 0.45)
+                             for t in ("untouched", "2D edit (target)", "ours", kind)], axis=1)
+    where = "every Gaussian" if region == ("none",) else ", ".join(region)
+    title = _label(rows[0].shape[1], f'"{s.config.prompt}"   region: {where}', 0.45)
+    atomic_write_bytes(path, encode_png(np.concatenate([title, header] + rows, axis=0)))
 
 
 def write_video(session: Session, edited: av.Avatar, path: str, fps: int = 24,

@@ -1,5 +1,6 @@
 """The host side of the edit loop: which (camera, frame) to edit next, the 2D editor calls, the
-edit cache, Instruct-NeRF2NeRF's dataset, and placing a batch on the devices.
+edit region (`region`: tracing and composited targets), the edit cache, Instruct-NeRF2NeRF's
+dataset, and placing a batch on the devices.
 
 Edits are quantised to 8 bits (an editor's output image), so checkpoints hold them exactly and
 a resumed run reproduces an uninterrupted one.
@@ -12,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from gae_jax.edit import region as edit_region
 from gae_jax.edit.config import EditConfig
 from gae_jax.edit.editors import make_editor
 
@@ -56,23 +58,40 @@ class EditSampler:
     """Samples (camera, frame) pairs and produces their 2D edits.
 
     Args:
-      config: the edit's settings (editor, batch, prompt, ...).
+      config: the edit's settings (editor, batch, prompt, region, ...).
       scene: the scene (training images: the original the editor is conditioned on).
       pairs: the training (sequence, frame) pairs, in rig frame order.
       preview: `step.make_preview(...)` function; rig and canonical (N, 3) for it.
+      region_fns: (`region.make_tracer()`, `region.make_coverage()`) jitted functions.
+      editor: a 2D editor object used instead of `config.editor` (benchmarks' oracle).
+
+    `votes` (N, 2) holds the `auto` region's accumulated tracing; `editable()` is the region's
+    (N,) bool selection; the cache holds composited targets.
     """
 
-    def __init__(self, config: EditConfig, scene, pairs, preview, rig, canonical):
+    def __init__(self, config: EditConfig, scene, pairs, preview, rig, canonical, region_fns,
+                 editor=None):
         options = {"semantic": dict(noise=config.editor_noise, keeps=config.editor_keeps),
                    "ip2p": dict(folder=config.ip2p_folder)}.get(config.editor, {})
         self.config, self.scene, self.pairs = config, scene, pairs
         self.preview, self.rig, self.canonical = preview, rig, canonical
         self.neighbours = frame_table(scene, pairs)
-        self.editor = make_editor(config.editor, **options)
+        self.editor = editor or make_editor(config.editor, **options)
         self.cache: dict = {}  # (cam, row) -> uint8 edit
         self.dataset: dict = {}  # in2n: (cam, row) -> uint8 edited dataset image
         self.spots = [(int(cam), row) for row in range(len(pairs))
                       for cam in scene.train_cameras]
+        self.region = edit_region.parse_region(config.region, config.prompt)
+        self.trace, self.coverage = region_fns
+        labels = np.asarray(rig.regions)
+        self.votes = np.zeros((len(labels), 2))
+        self.fixed = (np.ones(len(labels), bool) if self.region == ("none",) else
+                      None if self.region == ("auto",) else
+                      edit_region.named_selection(labels, self.region))
+
+    def editable(self) -> np.ndarray:
+        """(N,) bool: the Gaussians the edit may move now."""
+        return self.fixed if self.fixed is not None else edit_region.select(self.votes)
 
     def original_image(self, cam, row):
         name, t = self.pairs[row]
@@ -81,12 +100,30 @@ class EditSampler:
     def edit(self, params, cam, row, key):
         image, regions, coords = self.preview(params, self.rig, jnp.int32(cam), jnp.int32(row),
                                               self.canonical)
-        edited = self.editor.edit(np.asarray(image), self.original_image(cam, row) / 255.0,
-                                  self.config.prompt, key,
-                                  dict(regions=np.asarray(regions), canonical=np.asarray(coords)))
-        edited = (np.clip(edited, 0, 1) * 255 + 0.5).astype(np.uint8)
+        unedited = self.original_image(cam, row) / 255.0
+        context = dict(regions=np.asarray(regions), canonical=np.asarray(coords),
+                       view=(cam,) + tuple(self.pairs[row]))
+        edited = self.editor.edit(np.asarray(image), unedited, self.config.prompt, key, context)
+        edited = np.clip(edited, 0, 1)
+        if self.region != ("none",):
+            edited = self.composited(params, cam, row, edited, unedited)
+        edited = (edited * 255 + 0.5).astype(np.uint8)
         self.cache[(cam, row)] = edited
         return edited
+
+    def composited(self, params, cam, row, edited, unedited):
+        """The edit inside the region's soft mask at this view, the unedited image outside;
+        `auto` first votes this edit's change mask into the tracing."""
+        c = self.config
+        cam_, row_ = jnp.int32(cam), jnp.int32(row)
+        if self.region == ("auto",):
+            change = edit_region.change_mask(edited, unedited, c.change_threshold)
+            self.votes += np.asarray(self.trace(params, self.rig, cam_, row_,
+                                                jnp.asarray(change, jnp.float32)), np.float64)
+        coverage = np.asarray(self.coverage(params, self.rig, cam_, row_,
+                                            jnp.asarray(self.editable())))
+        mask = edit_region.soft_mask(coverage, c.region_dilate, c.region_blur)
+        return edit_region.composite(edited, unedited, mask)
 
     def batch(self, params, i: int, key) -> dict:
         """The i-th batch as host arrays: samples, fresh edits (or in2n's dataset), neighbours."""

@@ -40,11 +40,20 @@ class EditState:
 
 def avatar_optimizer(config: StepConfig) -> optax.GradientTransformation:
     """Adam at `lr` for colours, `lr_geometry` for opacities, scales and rotations, `lr_means`
-    for local positions (the paper: 1e-2 for everything)."""
+    for local positions (the paper: 1e-2 for everything), each decaying exponentially to
+    `lr_final` of itself over `lr_decay_steps` and constant after (a schedule that does not
+    depend on the run's length, so an extended run equals a longer one)."""
     rates = {k: config.lr_geometry for k in TRAINABLE}
     rates.update(colors=config.lr, means=config.lr_means)
-    return optax.partition({k: optax.adam(v, eps=config.adam_eps) for k, v in rates.items()},
-                           {k: k for k in TRAINABLE})
+
+    def rate(value):
+        if config.lr_final == 1.0:
+            return value
+        return optax.exponential_decay(value, config.lr_decay_steps, config.lr_final,
+                                       end_value=value * config.lr_final)
+
+    return optax.partition({k: optax.adam(rate(v), eps=config.adam_eps)
+                            for k, v in rates.items()}, {k: k for k in TRAINABLE})
 
 
 def discriminator_optimizer(config: StepConfig) -> optax.GradientTransformation:
@@ -61,10 +70,11 @@ def initial_state(config: StepConfig, params: dict, image_size: tuple, key) -> E
 
 
 def make_edit_step(config: StepConfig):
-    """A jitted `step(state, rig, batch) -> (state, metrics)`, state donated.
+    """A jitted `step(state, rig, batch, editable) -> (state, metrics)`, state donated.
 
     batch: cams (B,) int32, frames (B,) int32 (rows of rig.vertices), target (B, H, W, 3) float
-    (E_t), neighbour (B, H, W, 3) (E_k).
+    (E_t), neighbour (B, H, W, 3) (E_k). editable: (N,) bool, the edit region's Gaussians: the
+    others receive no gradient and no update, so no parameter outside the region moves.
     """
     disc = gan.Discriminator()
     opt, d_opt = avatar_optimizer(config), discriminator_optimizer(config)
@@ -76,7 +86,7 @@ def make_edit_step(config: StepConfig):
                            visibility_contributors=front)
         return out.image, (out.stats.radii > 0, out.stats.visibility)
 
-    def step(state: EditState, rig: Rig, batch: dict):
+    def step(state: EditState, rig: Rig, batch: dict, editable: jax.Array):
         def render_batch(params):
             return jax.vmap(render_one, in_axes=(None, None, 0, 0))(params, rig, batch["cams"],
                                                                       batch["frames"])
@@ -121,18 +131,30 @@ def make_edit_step(config: StepConfig):
             # The released code updates only Gaussians among a pixel's front contributors and
             # never the mouth's; every attribute of the others is frozen alike.
             keep = (jnp.max(visibility, axis=0) > 0) & ~jnp.isin(rig.regions, mouth_ids)
-            grads = {k: v * keep.reshape((-1,) + (1,) * (v.ndim - 1)).astype(v.dtype)
-                     for k, v in grads.items()}
+            grads = _masked(grads, keep)
+        grads = _masked(grads, editable)
         with jax.numpy_dtype_promotion("standard"):
             updates, opt_state = opt.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
         if params["colors"].ndim == 2:  # plain RGB: keep it a colour (no compensating overshoot)
             params = dict(params, colors=jnp.clip(params["colors"], 0.0, 1.0))
+        # Adam's momentum would carry a Gaussian that left an `auto` region on moving.
+        params = {k: jnp.where(_column(editable, v), v, state.params[k])
+                  for k, v in params.items()}
         psnr = jnp.mean(jax.vmap(losses.psnr)(images, target))
         metrics = dict(recon=recon, g_adv=adv, d_loss=d_value, const=const, psnr_to_edit=psnr)
         return EditState(params, opt_state, d_params, d_opt_state, state.step + 1), metrics
 
     return fast_jit(step, donate_argnums=0)
+
+
+def _column(mask, like):
+    return mask.reshape((-1,) + (1,) * (like.ndim - 1))
+
+
+def _masked(tree: dict, mask) -> dict:
+    """Per-Gaussian arrays zeroed where the (N,) bool mask is False."""
+    return {k: v * _column(mask, v).astype(v.dtype) for k, v in tree.items()}
 
 
 def make_preview(blend: wabe.Blend):

@@ -65,6 +65,50 @@ def _ssim_maps(a, b):
     return jax.vmap(losses.ssim_map)(a, b)
 
 
+DRIFT_DILATE = 3  # pixels (at 128 px) the edited region grows before "outside" begins
+
+
+def outside_edit(regions: np.ndarray, edited_region: str | None,
+                 dilate: int = DRIFT_DILATE) -> np.ndarray:
+    """(..., H, W) bool: pixels farther than `dilate` pixels from the edited region (of the
+    truth's region labels, (..., H, W) int, -1 background). Without a region (a style, which
+    edits the whole head) only the background away from the head counts."""
+    import cv2
+
+    regions = np.asarray(regions)
+    if edited_region is None:
+        inside = regions >= 0
+    else:
+        inside = regions == head.REGION_ID[edited_region]
+    flat = inside.reshape((-1,) + inside.shape[-2:]).astype(np.uint8)
+    kernel = np.ones((2 * dilate + 1,) * 2, np.uint8)
+    grown = np.stack([cv2.dilate(m, kernel) for m in flat]).astype(bool)
+    return ~grown.reshape(inside.shape)
+
+
+def drift_scores(ours: np.ndarray, untouched: np.ndarray, regions: np.ndarray,
+                 edited_region: str | None) -> dict:
+    """{mask: PSNR} of ours against the untouched avatar's render, over the pixels outside the
+    dilated edit (`outside_edit`): what changed that should not have. Masks: `whole` (every
+    such pixel), `background`, and the preserved groups of `region_masks`; None when empty,
+    and at most 99 dB (identical pixels)."""
+    p = _float(ours).reshape((-1,) + np.shape(ours)[-3:])
+    u = _float(untouched).reshape(p.shape)
+    regions = np.asarray(regions).reshape(p.shape[:-1])
+    outside = outside_edit(regions, edited_region)
+    masks = {k: m & outside for k, m in region_masks(regions, edited_region).items()
+             if k != "edited"}
+    masks["background"] = (regions < 0) & outside
+    out = {}
+    for name, mask in masks.items():
+        if not mask.any():
+            out[name] = None
+            continue
+        mse = float(np.mean((p[mask] - u[mask]) ** 2))
+        out[name] = round(min(10 * np.log10(1.0 / max(mse, 1e-12)), 99.0), 3)
+    return out
+
+
 def flicker(ours: np.ndarray, truth: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Temporal flicker of (T, H, W, 3) consecutive frames: the mean absolute difference between
     our frame-to-frame change and the truth's, (ours_t+1 - ours_t) - (truth_t+1 - truth_t), in

@@ -32,7 +32,9 @@ def render_frames(render, avatar: Avatar, evalset: EvalSet, frames, tile_capacit
 def evaluate_avatars(evalset: EvalSet, edited: Avatar, original: Avatar, tile_capacity: int,
                      blend: wabe.Blend = wabe.standard(), clip_folder: str = "") -> dict:
     """{protocol: {ours, original_avatar: {metric: {region: value}}, flicker, [clip_s,
-    clip_c]}, clip, truth}: the run's evaluation (metrics.json, evaluation.json)."""
+    clip_c]}, clip, truth}: the run's evaluation (metrics.json, evaluation.json). Ours also
+    has `drift`: PSNR against the untouched avatar outside the dilated edit
+    (`metrics.drift_scores`)."""
     render = rigs.make_view_renderer(blend)
     clip = clip_score.load_clip(clip_folder) if clip_folder else None
     captions = instructions.captions(evalset.prompt)
@@ -44,6 +46,7 @@ def evaluate_avatars(evalset: EvalSet, edited: Avatar, original: Avatar, tile_ca
         scores = dict(ours=metrics.region_scores(ours, frames.truth, frames.regions, region),
                       original_avatar=metrics.region_scores(before, frames.truth,
                                                             frames.regions, region))
+        scores["ours"]["drift"] = metrics.drift_scores(ours, before, frames.regions, region)
         clip_ours = render_frames(render, edited, evalset, clip_frames, tile_capacity)[:, 0]
         clip_before = render_frames(render, original, evalset, clip_frames, tile_capacity)[:, 0]
         masks = metrics.region_masks(clip_frames.regions[:, 0], region)

@@ -4,7 +4,8 @@
 
 render, original: (H, W, 3) float in [0, 1] (numpy or jax); key: a jax PRNG key (all randomness);
 context: a dict of what the caller knows about the render (`regions` (H, W) int region labels
-rendered from the avatar, -1 background; `canonical` (H, W, 3) head-space positions; ...). The
+rendered from the avatar, -1 background; `canonical` (H, W, 3) head-space positions; `view`
+(camera, sequence name, frame) of the render; ...). The
 result is a float32 numpy image of the same size.
 
   * `semantic` (default, no weights): recolours / patterns named regions, with a calibrated
