@@ -154,7 +154,8 @@ def test_in2n_dataset_update_replaces_one_image_per_iteration(base):
     assert sorted(edits.dataset) == sorted(edits.spots[:4])
 
 
-def test_config_and_cli_refuse_bad_input_clearly(capsys):
+def test_config_and_cli_refuse_bad_input_clearly(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the default --out runs/edit must not hold a run already
     with pytest.raises(ValueError, match="blend must be one of"):
         edit_config.EditConfig(blend="additive")
     with pytest.raises(ValueError, match="checkpoint_every must be >= 0"):

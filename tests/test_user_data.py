@@ -83,8 +83,10 @@ def test_reconstruct_train_evaluate_on_the_files_only(user_files, tmp_path, caps
             metrics["evaluation"][name]["ours"]["psnr"]["whole"], abs=0.01)
 
 
-def test_a_malformed_folder_is_named_with_its_file_and_field(user_files, tmp_path, capsys):
+def test_a_malformed_folder_is_named_with_its_file_and_field(user_files, tmp_path, capsys,
+                                                             monkeypatch):
     _, data, model_path, _, _ = user_files
+    monkeypatch.chdir(tmp_path)  # the default --out runs/edit must not hold a run already
     bad = tmp_path / "bad"
     bad.mkdir()
     with open(os.path.join(data, "transforms_train.json")) as f:
