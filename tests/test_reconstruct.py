@@ -112,3 +112,20 @@ def test_capacity_from_tile_load_leaves_no_tile_overflowing(scene):
     assert int(full.stats.overflow_tiles) == 0 and int(short.stats.overflow_tiles) >= 1
     rig = rigs.put_rig(scene, a, model.v_template[None], tile_capacity=1)
     assert rigs.required_capacity(a.trainable(), rig, [0]) >= load
+
+
+def test_a_fit_step_keeps_plain_colours_in_the_unit_range(scene):
+    # A white target and a colour rate of 0.5 push seen colours from 0.95 far past 1 in one
+    # Adam step; the step clips them, and leaves unseen ones where they were.
+    config = ReconstructConfig(lr_colors=0.5)
+    fixed = initial_avatar(scene, config, jax.random.PRNGKey(0))
+    params = dict(fixed.trainable(), colors=jnp.full((fixed.num, 3), 0.95, jnp.float32))
+    vertices = np.asarray(scene.model.v_template)[None]
+    rig = rigs.put_rig(scene, fixed, vertices)
+    white = jnp.full((scene.num_cameras, 1, scene.height, scene.width, 3), 255, jnp.uint8)
+    fit_step = step.make_fit_step(FitStepConfig.of(config))
+    state = step.initial_state(params, FitStepConfig.of(config), jax.random.PRNGKey(2))
+    state, _ = fit_step(state, rig, white, jnp.arange(scene.num_cameras, dtype=jnp.int32))
+    colors = np.asarray(state.params["colors"])
+    assert colors.max() == 1.0 and colors.min() >= 0.0
+    assert (colors == 1.0).any(axis=1).sum() > 10 and (colors == np.float32(0.95)).any()

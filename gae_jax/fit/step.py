@@ -69,6 +69,9 @@ def make_fit_step(config: FitStepConfig):
 
     rig: the avatar's `Rig` at the training frames; images: (C, T, H, W, 3) uint8 ground truth
     of those frames; cameras: (K,) int32 cameras to sample from.
+
+    Plain RGB colours are clipped to [0, 1] after each update: a Gaussian half hidden behind
+    another otherwise overshoots (cyan sclera, green spots in the mouth seen from a novel view).
     """
     opt = optimizer(config)
 
@@ -100,6 +103,8 @@ def make_fit_step(config: FitStepConfig):
         with jax.numpy_dtype_promotion("standard"):
             updates, opt_state = opt.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
+        if params["colors"].ndim == 2:
+            params = dict(params, colors=jnp.clip(params["colors"], 0.0, 1.0))
         # 3DGS measures the mean gradient in NDC: d/d(ndc) = d/d(pixel) * size / 2.
         screen_grad = jnp.linalg.norm(offset_grad, axis=-1) * (rig.width / 2)
         new = FitState(params, opt_state, key, state.step + 1,
