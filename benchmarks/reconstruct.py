@@ -1,7 +1,10 @@
 """Reconstruction quality against time and Gaussian count on the default scene.
 
-    python benchmarks/reconstruct.py [--variants default it100 it200 it800 size64 densify]
+    python benchmarks/reconstruct.py [--variants default it100 it200 it800 size64 densify ...]
                                      [--out benchmarks/results/reconstruct]
+
+Variants `makehuman` and `makehuman_it600` fit the MakeHuman head's scene (`--head makehuman`);
+`it600` is the edit's reconstruction (`EditConfig.reconstruct_iterations`).
 
 For each variant (one process each, run one after another so they share the machine's state):
 fit identity A's avatar on the training split, then score it against the ray-cast ground truth:
@@ -30,6 +33,9 @@ VARIANTS = {
     "size64": dict(size=64),
     "densify": dict(densify_every=100, densify_from=100),
     "lr_means_2e-3": dict(lr_means=2e-3, lr_means_final=2e-5),
+    "it600": dict(iterations=600),
+    "makehuman": dict(head="makehuman"),
+    "makehuman_it600": dict(head="makehuman", iterations=600),
 }
 
 
@@ -42,7 +48,8 @@ def run_variant(name: str) -> dict:
 
     options = dict(VARIANTS[name])
     size = options.pop("size", 128)
-    scene = synthetic.make_synthetic_scene(size=size, progress=False)
+    head_kind = options.pop("head", "procedural")
+    scene = synthetic.make_synthetic_scene(size=size, progress=False, head_kind=head_kind)
     config = ReconstructConfig(**options)
     start = time.perf_counter()
     avatar, history = fit(scene, config)
@@ -50,7 +57,7 @@ def run_variant(name: str) -> dict:
     frames = training_frames(scene)[::4]
     mix = [("mix", t) for t in range(0, scene.sequences["mix"].num_frames, 2)]
     return dict(
-        variant=name, size=size, config=options, seconds=round(seconds, 1),
+        variant=name, size=size, head=head_kind, config=options, seconds=round(seconds, 1),
         steps_per_second=round(config.iterations / seconds, 2),
         gaussians=int(avatar.num),
         train_psnr_last50=round(sum(h["psnr"] for h in history[-50:]) / 50, 2),

@@ -1,6 +1,6 @@
-"""Demo of what exists so far: the procedural head as Gaussians bound to its triangles, rendered.
+"""Demo of a built-in head as Gaussians bound to its triangles, rendered.
 
-    python -m gae_jax.demo --out runs/demo
+    python -m gae_jax.demo --out runs/demo [--head procedural|makehuman]
 
 Builds the built-in FLAME-format head, puts Gaussians on its triangles (GaussianAvatars binding),
 poses it (neutral, jaw open, blink, head turn) with FLAME skinning, renders each pose with the
@@ -53,8 +53,21 @@ def random_frustum_scene(num: int, width: int, height: int, seed: int = 0,
     return g, camera
 
 
-def head_poses(model):
+def head_poses(model, assets=None, kind: str = "procedural"):
     """Named poses that show the head's joints and expressions."""
+    if kind == "makehuman":
+        def units(**c):
+            return head.expression(model, assets.expr_names, **c)
+
+        return {
+            "neutral": head.params(model),
+            "jaw_open": head.params(model, expr=units(jawOpen=0.8)),
+            "blink_smile": head.params(model, expr=units(eyeBlinkLeft=1.0, eyeBlinkRight=1.0,
+                                                         mouthSmileLeft=1.0,
+                                                         mouthSmileRight=1.0)),
+            "turn_tongue": head.params(model, rotation=(0.0, 0.5, 0.0),
+                                       expr=units(jawOpen=0.5, tongueOut=1.0)),
+        }
     return {
         "neutral": head.params(model),
         "jaw_open": head.params(model, jaw_open=0.3),
@@ -70,19 +83,22 @@ def main(argv=None):
     parser.add_argument("--size", type=int, default=256, help="image width and height")
     parser.add_argument("--per-face", type=int, default=1, help="Gaussians per triangle")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--head", default="procedural", choices=head.HEAD_KINDS,
+                        help="the built-in head")
     args = parser.parse_args(argv)
     if args.size < 16 or args.per_face < 1:
         parser.error("--size must be >= 16 and --per-face >= 1")
 
-    model, assets = head.make_head()
+    model, assets = head.make_head(args.head)
     gaussians_on_mesh = avatar.init_from_mesh(
         model.v_template, model.faces, assets.vertex_colors, assets.face_regions,
         per_face=args.per_face, sh_degree=None, key=jax.random.PRNGKey(args.seed), opacity=0.95,
         normal_scale=0.1)
-    camera = make_camera(look_at_w2c([0.0, 0.0, 0.55], [0.0, -0.01, 0.0], up=(0, 1, 0)),
+    distance = {"procedural": 0.55, "makehuman": 0.64}[args.head]  # the MakeHuman head is taller
+    camera = make_camera(look_at_w2c([0.0, 0.0, distance], [0.0, -0.01, 0.0], up=(0, 1, 0)),
                          args.size, args.size, fov_degrees=28.0)
 
-    poses = head_poses(model)
+    poses = head_poses(model, assets, args.head)
     load = jax.jit(lambda p: splat.tile_load(
         avatar.deform(gaussians_on_mesh, flame.lbs(model, p), model.faces), camera))
     # Sized from the busiest tile over the poses: a small image puts many Gaussians in a tile.

@@ -25,6 +25,7 @@ REGION_WORDS = {
     "iris": ("eyes", "eye", "iris", "irises"),
     "brows": ("eyebrows", "eyebrow", "brows"),
     "teeth": ("teeth",),
+    "tongue": ("tongue",),
 }
 COLOURS = {
     "blue": (0.12, 0.28, 0.85), "red": (0.85, 0.10, 0.10), "green": (0.15, 0.70, 0.20),

@@ -4,6 +4,7 @@ the demo renders the head."""
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from gae_jax.demo import main as demo_main
 from gae_jax.util import compile as gcompile
@@ -23,8 +24,9 @@ def test_options_follow_the_cpu_flags(monkeypatch):
     assert gcompile.compiler_options() == {}
 
 
-def test_demo_writes_the_head_without_overflow(tmp_path):
-    report = demo_main(["--out", str(tmp_path), "--size", "32"])
+@pytest.mark.parametrize("kind", ["procedural", "makehuman"])
+def test_demo_writes_the_head_without_overflow(tmp_path, kind):
+    report = demo_main(["--out", str(tmp_path), "--size", "32", "--head", kind])
     data = (tmp_path / "head.png").read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
     assert report["gaussians"] == report["faces"] and report["overflow_tiles"] == 0

@@ -92,3 +92,34 @@ def test_render_frame_with_edited_colours_changes_only_that_region(scene_and_dir
                                     scene.shapes["A"], seq, 2, scene.intrinsics, scene.w2c, 40,
                                     scene.background, supersample=2)  # the scene default
     np.testing.assert_array_equal(unedited, original)
+
+
+def test_the_makehuman_scene_drives_face_units_and_shows_the_tongue_only_when_held_out(
+        tmp_path):
+    scene = synthetic.make_synthetic_scene(cache_dir=str(tmp_path), head_kind="makehuman",
+                                           size=32, num_cameras=9, frames_per_sequence=8,
+                                           progress=False)
+    _, assets = head.make_head("makehuman")
+    tongue = assets.expr_names.index("tongueOut")
+    for name, seq in scene.sequences.items():
+        assert seq.expr.shape == (8, len(assets.expr_names))
+        assert (np.abs(seq.expr[:, tongue]).max() > 0) == (name == synthetic.HELD_OUT_SEQUENCE)
+    assert not np.allclose(scene.shapes["A"], scene.shapes["B"])
+    skin = np.unique(np.asarray(scene.model.faces)[assets.face_regions == head.REGION_ID["skin"]])
+    ratio = scene.albedo["B"][skin] / np.maximum(scene.albedo["A"][skin], 1e-6)
+    # B's skin is A's rescaled by one colour (the blush kept).
+    np.testing.assert_allclose(ratio, np.broadcast_to(ratio[:1], ratio.shape), rtol=1e-5)
+    assert ratio[0].max() < 0.8
+    seen = {name: set(np.unique(r)) for name, r in scene.regions.items()}
+    assert head.REGION_ID["tongue"] in seen[synthetic.HELD_OUT_SEQUENCE]
+    with pytest.raises(ValueError, match="unknown head"):
+        synthetic.make_synthetic_scene(cache_dir=str(tmp_path), head_kind="robot", size=16)
+
+
+def test_the_scene_config_names_the_heads_and_refuses_a_head_for_user_data(tmp_path):
+    from gae_jax.scene.load import SceneConfig, load_scene
+
+    with pytest.raises(ValueError, match="--head takes procedural or makehuman"):
+        SceneConfig(head="robot")
+    with pytest.raises(ValueError, match="--data brings its own model"):
+        load_scene(SceneConfig(data=str(tmp_path), head="makehuman"))

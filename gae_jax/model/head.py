@@ -23,13 +23,15 @@ import numpy as np
 
 from gae_jax.model.flame import FLAME_PARENTS, FlameModel, FlameParams
 
-REGIONS = ("skin", "hair", "brows", "lips", "mouth", "teeth", "sclera", "iris", "pupil")
+# "tongue" is the MakeHuman head's (model/makehuman.py); the procedural head has none.
+REGIONS = ("skin", "hair", "brows", "lips", "mouth", "teeth", "sclera", "iris", "pupil", "tongue")
 REGION_ID = {name: i for i, name in enumerate(REGIONS)}
 SHAPE_NAMES = ("head_width", "nose_length", "jaw_width")
 EXPR_NAMES = ("blink_left", "blink_right", "smile", "brow_raise", "lips_part", "pout")
 ALBEDO = dict(skin=(0.87, 0.68, 0.56), hair=(0.25, 0.16, 0.10), brows=(0.22, 0.14, 0.09),
               lips=(0.75, 0.32, 0.34), mouth=(0.25, 0.05, 0.07), teeth=(0.95, 0.94, 0.88),
-              sclera=(0.96, 0.96, 0.96), iris=(0.25, 0.45, 0.65), pupil=(0.03, 0.03, 0.03))
+              sclera=(0.96, 0.96, 0.96), iris=(0.25, 0.45, 0.65), pupil=(0.03, 0.03, 0.03),
+              tongue=(0.70, 0.33, 0.36))
 
 HEAD_RADII = (0.078, 0.102, 0.092)
 MOUTH_CENTRE = np.array([0.0, -0.045])  # (x, y) on the face
@@ -49,11 +51,14 @@ ROOT = np.array([0.0, -0.11, -0.02])
 
 @dataclasses.dataclass(frozen=True)
 class HeadAssets:
-    """Per-face region labels (F,) int32 (index into `REGIONS`) and per-vertex albedo (V, 3)."""
+    """Per-face region labels (F,) int32 (index into `REGIONS`), per-vertex albedo (V, 3), and
+    the names of the model's expression and identity directions (in column order)."""
 
     face_regions: np.ndarray
     vertex_colors: np.ndarray
     region_names: tuple = REGIONS
+    expr_names: tuple = EXPR_NAMES
+    shape_names: tuple = SHAPE_NAMES
 
 
 class _Builder:
@@ -283,8 +288,20 @@ def _eyelid(b: _Builder, side: int):
           expr={name: cap(closed) - verts})
 
 
-def make_head() -> tuple[FlameModel, HeadAssets]:
-    """The procedural head as (FlameModel, HeadAssets); identity A is all-zero coefficients."""
+HEAD_KINDS = ("procedural", "makehuman")
+
+
+def make_head(kind: str = "procedural") -> tuple[FlameModel, HeadAssets]:
+    """A built-in head as (FlameModel, HeadAssets); identity A is all-zero coefficients.
+
+    kind: `procedural` (this module's) or `makehuman` (the MakeHuman base head with the 52 ARKit
+    face units, `model/makehuman.py`)."""
+    if kind == "makehuman":
+        from gae_jax.model import makehuman
+
+        return makehuman.load()
+    if kind != "procedural":
+        raise ValueError(f"unknown head {kind!r}; built-in heads: {', '.join(HEAD_KINDS)}")
     b = _Builder()
     _skin(b)
     _mouth_cavity(b)
@@ -324,20 +341,22 @@ def make_head() -> tuple[FlameModel, HeadAssets]:
     return model, assets
 
 
-def expression(model: FlameModel, **coefficients) -> jnp.ndarray:
-    """(E,) expression vector from named coefficients, e.g. expression(m, blink_left=1.0)."""
-    unknown = set(coefficients) - set(EXPR_NAMES)
+def expression(model: FlameModel, names: tuple = EXPR_NAMES, **coefficients) -> jnp.ndarray:
+    """(E,) expression vector from named coefficients, e.g. expression(m, blink_left=1.0);
+    `names`: the model's expression names (`HeadAssets.expr_names`)."""
+    unknown = set(coefficients) - set(names)
     if unknown:
-        raise ValueError(f"unknown expressions {sorted(unknown)}; known: {EXPR_NAMES}")
-    return jnp.asarray([float(coefficients.get(n, 0.0)) for n in EXPR_NAMES], jnp.float32)
+        raise ValueError(f"unknown expressions {sorted(unknown)}; known: {', '.join(names)}")
+    return jnp.asarray([float(coefficients.get(n, 0.0)) for n in names], jnp.float32)
 
 
-def identity(**coefficients) -> jnp.ndarray:
-    """(S,) shape vector from named coefficients, e.g. identity(head_width=0.5)."""
-    unknown = set(coefficients) - set(SHAPE_NAMES)
+def identity(names: tuple = SHAPE_NAMES, **coefficients) -> jnp.ndarray:
+    """(S,) shape vector from named coefficients, e.g. identity(head_width=0.5); `names`: the
+    model's identity names (`HeadAssets.shape_names`)."""
+    unknown = set(coefficients) - set(names)
     if unknown:
-        raise ValueError(f"unknown shape directions {sorted(unknown)}; known: {SHAPE_NAMES}")
-    return jnp.asarray([float(coefficients.get(n, 0.0)) for n in SHAPE_NAMES], jnp.float32)
+        raise ValueError(f"unknown shape directions {sorted(unknown)}; known: {', '.join(names)}")
+    return jnp.asarray([float(coefficients.get(n, 0.0)) for n in names], jnp.float32)
 
 
 def params(model: FlameModel, *, shape=None, expr=None, jaw_open: float = 0.0,

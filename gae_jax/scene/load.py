@@ -51,10 +51,14 @@ class SceneConfig:
     flame_model: str = ""
     flame_masks: str = ""
     size: int = 128
+    head: str = "procedural"
 
     def __post_init__(self):
         if self.size < 8:
             raise ValueError(f"size must be >= 8, got {self.size}")
+        if self.head not in head.HEAD_KINDS:
+            raise ValueError(f"unknown head {self.head!r}; --head takes "
+                             f"{' or '.join(head.HEAD_KINDS)}")
 
 
 SCENE_HELP = dict(
@@ -63,7 +67,9 @@ SCENE_HELP = dict(
     flame_model="FLAME model file (.pkl or gae_jax .npz) posing --data; empty: the embedded head",
     flame_masks="FLAME_masks.pkl naming the FLAME model's regions (lips, eyeballs, scalp)",
     size="image size of the embedded scene (pixels; --data keeps its own; a new size builds and "
-         "caches a new scene, about a minute at 128 px, and reconstructs its avatar)")
+         "caches a new scene, about a minute at 128 px, and reconstructs its avatar)",
+    head="the embedded scene's head: procedural (a few primitives) or makehuman (the MakeHuman "
+         "base head with the 52 ARKit face units)")
 
 
 def load_scene(source: SceneConfig = SceneConfig(), progress: bool = False) -> Scene:
@@ -73,6 +79,9 @@ def load_scene(source: SceneConfig = SceneConfig(), progress: bool = False) -> S
         if flame_model or flame_masks:
             raise ValueError("--flame-model and --flame-masks need --data (the embedded scene "
                              "is posed by the embedded head)")
-        return synthetic.make_synthetic_scene(size=source.size, progress=progress)
+        return synthetic.make_synthetic_scene(size=source.size, progress=progress,
+                                              head_kind=source.head)
+    if source.head != "procedural":
+        raise ValueError("--head chooses the embedded scene's head; --data brings its own model")
     model, regions = load_model(flame_model, flame_masks, data)
     return nersemble.load_scene(data, model, regions)

@@ -1,4 +1,5 @@
-"""The embedded default scene: the procedural head, filmed by a camera rig, with ground truth.
+"""The embedded default scene: a built-in head (`head.make_head(kind)`: the procedural head or
+the MakeHuman head), filmed by a camera rig, with ground truth.
 
 The scene is a `scene.types.Scene` that carries the head model and its albedo, so the ideal
 edit of any instruction can be ray-cast too (`evaluation.truth`).
@@ -36,9 +37,15 @@ from gae_jax.util.fileio import atomic_write_bytes
 SCENE_VERSION = 3
 LIGHT_DIRECTION = np.array([0.35, 0.55, 0.75])  # in head space, towards the light
 AMBIENT = 0.45
-IDENTITY_B_SHAPE = dict(head_width=0.6, nose_length=0.8, jaw_width=-0.6)
+IDENTITY_B_SHAPE = {
+    "procedural": dict(head_width=0.6, nose_length=0.8, jaw_width=-0.6),
+    "makehuman": {"head-square": 0.7, "head-fat-incr": 0.5, "nose-scale-vert-incr": 0.8,
+                  "nose-point-width-incr": 0.6, "chin-width-incr": -0.6,
+                  "mouth-lowerlip-volume-incr": 0.7, "eyebrows-trans-up": 0.5}}
 IDENTITY_B_ALBEDO = dict(skin=(0.62, 0.45, 0.36), hair=(0.08, 0.07, 0.07),
                          brows=(0.07, 0.06, 0.06), iris=(0.30, 0.55, 0.30))
+# Camera distance per head: the MakeHuman head with its neck is taller than the procedural one.
+CAMERA_DISTANCE = {"procedural": 0.6, "makehuman": 0.68}
 TRAIN_SEQUENCES = ("talk", "smile", "blink", "jaw", "turn")
 HELD_OUT_SEQUENCE = "mix"
 CROSS_SEQUENCE = "b_mix"
@@ -77,11 +84,13 @@ def _wave(t, period, phase=0.0):
     return 0.5 - 0.5 * np.cos(2 * np.pi * (t / period + phase))
 
 
-def make_sequences(frames_per_sequence: int, num_expr: int) -> dict:
-    """The motion library: name -> Sequence (deterministic)."""
+def make_sequences(frames_per_sequence: int, num_expr: int, kind: str = "procedural",
+                   names: tuple = head.EXPR_NAMES) -> dict:
+    """The motion library of a built-in head: name -> Sequence (deterministic); `names` are the
+    model's expression names (`HeadAssets.expr_names`)."""
     t = np.arange(frames_per_sequence, dtype=np.float64)
     n = frames_per_sequence
-    e = {name: i for i, name in enumerate(head.EXPR_NAMES)}
+    e = {name: i for i, name in enumerate(names)}
 
     def seq(name, identity, split, expr=None, rotation=None, neck=None, jaw=None, eyes=None):
         z3 = np.zeros((n, 3))
@@ -98,6 +107,8 @@ def make_sequences(frames_per_sequence: int, num_expr: int) -> dict:
             x[:, e[k]] = v
         return x
 
+    if kind == "makehuman":
+        return {s.name: s for s in _face_unit_sequences(t, n, seq, expr_of)}
     talk_jaw = 0.18 * _wave(t, 5.0) * (0.6 + 0.4 * _wave(t, 13.0))
     out = [
         seq("talk", "A", "train", expr_of(lips_part=0.5 * _wave(t, 7.0), pout=0.4 * _wave(t, 11)),
@@ -125,6 +136,37 @@ def make_sequences(frames_per_sequence: int, num_expr: int) -> dict:
     return {s.name: s for s in out}
 
 
+def _face_unit_sequences(t, n, seq, expr_of) -> list:
+    """The MakeHuman head's motions, driven by ARKit face units: the jaw opens by `jawOpen` (its
+    joint stays), the held-out sequence sticks the tongue out."""
+    eyes = np.stack([0 * t, 0.25 * np.sin(t / 3), 0 * t, 0 * t, 0.25 * np.sin(t / 3), 0 * t], -1)
+    talk_jaw = 0.35 * _wave(t, 5.0) * (0.6 + 0.4 * _wave(t, 13.0))
+    return [
+        seq("talk", "A", "train", expr_of(jawOpen=talk_jaw, mouthFunnel=0.4 * _wave(t, 7.0),
+                                          mouthPucker=0.4 * _wave(t, 11.0))),
+        seq("smile", "A", "train", expr_of(mouthSmileLeft=_wave(t, n), mouthSmileRight=_wave(t, n),
+                                           cheekSquintLeft=0.5 * _wave(t, n),
+                                           cheekSquintRight=0.5 * _wave(t, n),
+                                           browInnerUp=0.8 * _wave(t, n, 0.2))),
+        seq("blink", "A", "train", expr_of(eyeBlinkLeft=_wave(t, 6.0),
+                                           eyeBlinkRight=_wave(t, 6.0)), eyes=eyes),
+        seq("jaw", "A", "train", expr_of(jawOpen=0.8 * _wave(t, n))),
+        seq("turn", "A", "train", expr_of(jawOpen=0.25 * _wave(t, 9.0)),
+            rotation=np.stack([0.15 * np.sin(t / 4), 0.55 * np.sin(2 * np.pi * t / n), 0 * t],
+                              -1),
+            neck=np.stack([0.1 * np.sin(t / 3), 0 * t, 0.08 * np.sin(t / 5)], -1)),
+        seq(HELD_OUT_SEQUENCE, "A", "self_reenactment",
+            expr_of(mouthSmileLeft=0.7 * _wave(t, 9.0), mouthSmileRight=0.5 * _wave(t, 9.0),
+                    eyeBlinkLeft=_wave(t, 8.0, 0.3), jawOpen=0.6 * _wave(t, 7.0, 0.5),
+                    tongueOut=0.8 * _wave(t, 7.0, 0.5)),
+            rotation=np.stack([0 * t, 0.35 * np.sin(t / 3), 0.1 * np.sin(t / 4)], -1)),
+        seq(CROSS_SEQUENCE, "B", "cross_identity",
+            expr_of(mouthPucker=_wave(t, 10.0), eyeBlinkRight=_wave(t, 7.0),
+                    browInnerUp=_wave(t, 12.0), jawOpen=0.6 * _wave(t, 8.0)),
+            rotation=np.stack([0.1 * np.sin(t / 2), -0.4 * np.sin(t / 5), 0 * t], -1)),
+    ]
+
+
 def shaded_colors(model: flame.FlameModel, albedo: np.ndarray, shape: np.ndarray) -> np.ndarray:
     """(V, 3) albedo x Lambert shading of the identity's neutral mesh, baked in head space."""
     import jax.numpy as jnp
@@ -144,13 +186,24 @@ def shaded_colors(model: flame.FlameModel, albedo: np.ndarray, shape: np.ndarray
     return np.clip(albedo * shade[:, None], 0, 1)
 
 
-def identity_albedo(assets: head.HeadAssets, overrides: dict) -> np.ndarray:
-    """(V, 3) albedo with some regions recoloured (per-vertex, by the regions of its faces)."""
+def identity_albedo(model: flame.FlameModel, assets: head.HeadAssets,
+                    overrides: dict) -> np.ndarray:
+    """(V, 3) albedo with some regions recoloured. A head whose vertices each belong to one
+    region (the MakeHuman head) scales each region's vertices by new colour / default colour,
+    keeping their variation; otherwise (the procedural head, whose regions share vertices) the
+    vertices of exactly the default colour take the new one."""
     albedo = assets.vertex_colors.astype(np.float64).copy()
+    faces = np.asarray(model.faces)
+    owners = np.zeros((len(albedo), len(head.REGIONS)), bool)
+    owners[faces.ravel(), np.repeat(assets.face_regions, 3)] = True
+    split = bool((owners.sum(1) <= 1).all())
     for region, colour in overrides.items():
         default = np.asarray(head.ALBEDO[region])
-        mask = np.all(np.isclose(albedo, default, atol=1e-6), axis=1)
-        albedo[mask] = colour
+        if split:
+            mask = owners[:, head.REGION_ID[region]]
+            albedo[mask] = np.clip(albedo[mask] / default * np.asarray(colour), 0, 1)
+        else:
+            albedo[np.all(np.isclose(albedo, default, atol=1e-6), axis=1)] = colour
     return albedo
 
 
@@ -176,6 +229,15 @@ def render_frame(model, face_regions, vertex_colors, shape, sequence: Sequence, 
     return images, regions
 
 
+def _model_fingerprint(model: flame.FlameModel, assets: head.HeadAssets) -> str:
+    """12 hex digits of a head's geometry, bases and albedo (a re-converted asset rebuilds)."""
+    h = hashlib.sha256()
+    for array in (model.v_template, model.faces, model.shapedirs, model.exprdirs,
+                  model.lbs_weights, assets.face_regions, assets.vertex_colors):
+        h.update(np.ascontiguousarray(np.asarray(array)).tobytes())
+    return h.hexdigest()[:12]
+
+
 def _cache_key(params: dict) -> str:
     blob = json.dumps(dict(params, version=SCENE_VERSION), sort_keys=True).encode()
     return hashlib.sha256(blob).hexdigest()[:16]
@@ -183,7 +245,8 @@ def _cache_key(params: dict) -> str:
 
 def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequence: int = 16,
                          background: str = "white", supersample: int = 2,
-                         cache_dir: str | None = None, progress: bool = True) -> Scene:
+                         cache_dir: str | None = None, progress: bool = True,
+                         head_kind: str = "procedural") -> Scene:
     """Builds (or loads from the cache) the default scene.
 
     Args:
@@ -194,22 +257,29 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
       supersample: ground-truth rays per pixel per axis. 2 (4 rays) is 40.4 dB from a 6x6
         reference at 128 px, 3 is 44.7 dB and takes twice the build time.
       cache_dir: where cached scenes live; `$GAE_JAX_CACHE` or ~/.cache/gae_jax when None.
+      head_kind: the built-in head (`head.HEAD_KINDS`).
     """
     if size < 8 or num_cameras < 2 or frames_per_sequence < 2 or supersample < 1:
         raise ValueError("need size >= 8, num_cameras >= 2, frames_per_sequence >= 2 and "
                          "supersample >= 1")
     if background not in ("white", "black"):
         raise ValueError(f"background must be 'white' or 'black', got {background!r}")
-    key = _cache_key(dict(size=size, num_cameras=num_cameras, frames=frames_per_sequence,
-                          background=background, supersample=supersample))
+    model, assets = head.make_head(head_kind)  # ValueError on an unknown kind
+    params = dict(size=size, num_cameras=num_cameras, frames=frames_per_sequence,
+                  background=background, supersample=supersample)
+    if head_kind != "procedural":  # the procedural head keeps its caches' keys
+        params["head"] = head_kind
+        params["model"] = _model_fingerprint(model, assets)
+    key = _cache_key(params)
     cache_dir = cache_dir or os.environ.get("GAE_JAX_CACHE") or os.path.join(
         os.path.expanduser("~"), ".cache", "gae_jax")
     path = os.path.join(cache_dir, f"scene-{key}.npz")
-    model, assets = head.make_head()
-    sequences = make_sequences(frames_per_sequence, model.num_expr)
-    intrinsics, w2c = camera_rig(num_cameras, size)
-    shapes = {"A": np.zeros(model.num_shape), "B": np.asarray(head.identity(**IDENTITY_B_SHAPE))}
-    albedos = {"A": assets.vertex_colors, "B": identity_albedo(assets, IDENTITY_B_ALBEDO)}
+    sequences = make_sequences(frames_per_sequence, model.num_expr, head_kind, assets.expr_names)
+    intrinsics, w2c = camera_rig(num_cameras, size, distance=CAMERA_DISTANCE[head_kind])
+    shapes = {"A": np.zeros(model.num_shape),
+              "B": np.asarray(head.identity(assets.shape_names, **IDENTITY_B_SHAPE[head_kind]))}
+    albedos = {"A": assets.vertex_colors,
+               "B": identity_albedo(model, assets, IDENTITY_B_ALBEDO)}
     colours = {k: shaded_colors(model, albedos[k], shapes[k]) for k in albedos}
     bg = np.ones(3) if background == "white" else np.zeros(3)
     held_out = (HELD_OUT_CAMERA % num_cameras,)
