@@ -31,7 +31,7 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from editbench import Bench, mean_over_protocols  # noqa: E402
+from editbench import Bench, fmt, mean_over_protocols  # noqa: E402
 from editbench import score_of as score  # noqa: E402
 from oracle import OracleEditor  # noqa: E402
 
@@ -86,15 +86,15 @@ def table(results: dict, edit: str) -> str:
                 lines.append(f"| {LABELS.get(row, row)} | " + "non-finite |" * (len(head) - 1))
             continue
         who = "original_avatar" if row == "original avatar" else "ours"
-        cells = [_fmt(score(rec, p, m, r, who)) for p, m, r, _ in cols]
-        cells.append(_fmt(mean_over_protocols(rec, "lpips", "whole", who), 3))
+        cells = [fmt(score(rec, p, m, r, who)) for p, m, r, _ in cols]
+        cells.append(fmt(mean_over_protocols(rec, "lpips", "whole", who), 3))
         ev = rec["evaluation"]
         flick = [ev[p]["flicker"][who]["whole"] for p in protocols.PROTOCOLS]
-        cells.append(_fmt(sum(flick) / len(flick), 4))
+        cells.append(fmt(sum(flick) / len(flick), 4))
         clips = [[ev[p].get(k) for p in protocols.PROTOCOLS] for k in ("clip_s", "clip_c")]
-        cells += [_fmt(sum(c) / len(c), 3) if who == "ours" and None not in c else "-"
+        cells += [fmt(sum(c) / len(c), 3) if who == "ours" and None not in c else "-"
                   for c in clips]
-        cells.append("-" if who != "ours" else _fmt(rec["edit_seconds"], 0))
+        cells.append("-" if who != "ours" else fmt(rec["edit_seconds"], 0))
         lines.append(f"| {LABELS.get(row, row)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -118,17 +118,14 @@ def summary(results: dict, edits: list) -> str:
                 ev = rec.get("evaluation")
                 flick = (sum(ev[p]["flicker"][who]["whole"] for p in protocols.PROTOCOLS) / 3
                          if ev else None)
-                cells += [_fmt(flick, 4), _fmt(mean_over_protocols(rec, "psnr", "whole", who))]
+                cells += [fmt(flick, 4), fmt(mean_over_protocols(rec, "psnr", "whole", who))]
             else:
                 guard = GUARD[edit.split("_")[0]]
-                cells += [_fmt(mean_over_protocols(rec, "psnr", r, who))
+                cells += [fmt(mean_over_protocols(rec, "psnr", r, who))
                           for r in ("edited", guard, "whole")]
         lines.append(f"| {LABELS.get(row, row)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
-
-def _fmt(v, digits=2):
-    return "-" if v is None else f"{v:.{digits}f}"
 
 
 def main(argv=None) -> int:

@@ -105,6 +105,11 @@ def write_report(path: str, text: str) -> None:
     print(text)
 
 
+def fmt(value, digits: int = 2) -> str:
+    """A table cell: the number with `digits` decimals, "-" for None."""
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
 def _jsonable(x):
     if isinstance(x, dict):
         return {k: _jsonable(v) for k, v in x.items()}

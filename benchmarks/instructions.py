@@ -21,7 +21,7 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from editbench import Bench, default_scene_and_avatar, mean_over_protocols  # noqa: E402
-from editbench import write_report  # noqa: E402
+from editbench import fmt, write_report  # noqa: E402
 from oracle import OracleEditor  # noqa: E402
 
 from gae_jax.edit.config import preset  # noqa: E402
@@ -70,23 +70,20 @@ def markdown(results: dict) -> str:
                 continue
             r = row_of(rec)
             if who == "default":
-                lines.append("| " + " | ".join([prompt, "untouched avatar", _f(
-                    r["untouched_edited"])] + [_f(r["untouched_" + k]) for k in PRESERVED]
-                    + [_f(r["untouched_whole"]), "", "", ""]) + " |")
+                lines.append("| " + " | ".join([prompt, "untouched avatar", fmt(
+                    r["untouched_edited"])] + [fmt(r["untouched_" + k]) for k in PRESERVED]
+                    + [fmt(r["untouched_whole"]), "", "", ""]) + " |")
             lines.append("| " + " | ".join(
-                [prompt, who, _f(r["edited"])] + [_f(r[k]) for k in PRESERVED]
-                + [_f(r["whole"]), _f(r["worst_preserved_loss"]), _f(r["drift_min"]),
-                   _f(r["edit_seconds"], 0)]) + " |")
+                [prompt, who, fmt(r["edited"])] + [fmt(r[k]) for k in PRESERVED]
+                + [fmt(r["whole"]), fmt(r["worst_preserved_loss"]), fmt(r["drift_min"]),
+                   fmt(r["edit_seconds"], 0)]) + " |")
     rec = results.get(f"default/{STYLE}")
     if rec and "evaluation" in rec:
         lines += ["", f"{STYLE!r}: flicker ours {_flicker(rec, 'ours')} / untouched "
                   f"{_flicker(rec, 'original_avatar')}; background drift (min over protocols) "
-                  f"{_f(_drift(rec, 'background'))} dB; edit {rec['edit_seconds']} s"]
+                  f"{fmt(_drift(rec, 'background'))} dB; edit {rec['edit_seconds']} s"]
     return "\n".join(lines)
 
-
-def _f(v, digits=2):
-    return "-" if v is None else f"{v:.{digits}f}"
 
 
 def main(argv=None) -> int:

