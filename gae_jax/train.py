@@ -7,7 +7,8 @@ Loads the scene, takes the original avatar (`--avatar DIR` with a GaussianAvatar
 `point_cloud.ply`, or reconstructs one and caches it), edits it (`edit.edit.edit_avatar`), and
 writes the run folder: `metrics.json`, `evaluation_set.npz` (what `python -m gae_jax.evaluate`
 re-scores), `original_avatar/` and `edited_avatar/` (GaussianAvatars files), `edited_posed.ply`,
-`grid.png` and `reenactment.mp4`. Presets: `edit.config.PRESETS`.
+`motion.npz` (the scene's sequences, which `python -m gae_jax.view` plays), `grid.png` and
+`reenactment.mp4`. Presets: `edit.config.PRESETS`.
 """
 
 from __future__ import annotations

@@ -20,6 +20,7 @@ from gae_jax.model import head
 from gae_jax.scene import rig as rigs
 from gae_jax.scene import synthetic
 from gae_jax.scene.load import SCENE_HELP, SceneConfig
+from gae_jax.viewer import source
 from tests.helpers import near
 
 SIZE = 96
@@ -208,8 +209,13 @@ def test_run_writes_a_self_contained_folder_that_evaluate_rescores(base, tmp_pat
     metrics = train.run(config, str(out), scene, original, progress=False, video=False)
     for name in ("metrics.json", "grid.png", "edited_posed.ply", truth.FILE_NAME,
                  "edited_avatar/point_cloud.ply", "edited_avatar/flame_param.npz",
-                 "original_avatar/point_cloud.ply"):
+                 "original_avatar/point_cloud.ply", "motion.npz"):
         assert (out / name).is_file(), name
+    # the viewer reads the folder alone: both avatars, the scene's every sequence and identity
+    viewable = source.from_run(str(out))
+    assert set(viewable.sequences) == set(scene.sequences)
+    assert set(viewable.shapes) == set(scene.shapes) and viewable.avatars["edited"].num == \
+        original.num
     written = metrics["evaluation"]
     assert "skipped" in written["clip"] and written["truth"] == "ideal edit"
     for name in protocols.PROTOCOLS:

@@ -23,6 +23,7 @@ from gae_jax.edit.edit import Session, make_sampler
 from gae_jax.evaluation import protocols, truth
 from gae_jax.model import avatar as av
 from gae_jax.model import avatar_io, head
+from gae_jax.scene import motion_io
 from gae_jax.scene import rig as rigs
 from gae_jax.scene.types import interpolated_vertices, posed_vertices, stacked_params
 from gae_jax.util.fileio import atomic_write_bytes, encode_png
@@ -146,13 +147,15 @@ def write_video(session: Session, edited: av.Avatar, path: str, fps: int = 24,
 
 def write_avatar_files(session: Session, edited: av.Avatar, out_dir: str) -> None:
     """`edited_avatar/` and `original_avatar/` (GaussianAvatars folders with the held-out or
-    training motion) and `edited_posed.ply` (world space, first frame of that motion)."""
+    training motion), `edited_posed.ply` (world space, first frame of that motion) and
+    `motion.npz` (every sequence and identity of the scene, for the viewer)."""
     s = session
     names = s.scene.sequences_of("self_reenactment") or s.scene.sequences_of("train")
     motion = stacked_params(s.scene, names)
     for folder, avatar in (("edited_avatar", edited), ("original_avatar", s.original)):
         avatar_io.save_avatar_folder(os.path.join(out_dir, folder), avatar, s.scene.shapes["A"],
                                      motion)
+    motion_io.save(os.path.join(out_dir, motion_io.FILE_NAME), s.scene.sequences, s.scene.shapes)
     verts = posed_vertices(s.scene, [(names[0], 0)])[0]
     avatar_io.save_posed_ply(av.deform(edited, jnp.asarray(verts), s.scene.model.faces),
                              os.path.join(out_dir, "edited_posed.ply"))

@@ -1,0 +1,166 @@
+"""What the viewer shows, read from disk: a run folder of `python -m gae_jax.train`, or any
+GaussianAvatars avatar folder bound to the embedded head or a FLAME file.
+
+A run folder gives the edited and the original avatar, the model (named by `metrics.json`'s
+scene settings), the blend the edit trained with, the rig's cameras (`evaluation_set.npz`) and
+the scene's motions (`motion.npz`; older runs: the avatars' own `flame_param.npz`). An avatar
+folder gives one avatar and its `flame_param.npz`; the cameras are the embedded rig's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+
+import numpy as np
+
+from gae_jax.edit.config import EditConfig, StepConfig
+from gae_jax.evaluation import truth
+from gae_jax.model import avatar_io, head
+from gae_jax.model.avatar import Avatar
+from gae_jax.model.flame import FlameModel
+from gae_jax.render import wabe
+from gae_jax.scene import motion_io, synthetic
+from gae_jax.scene.load import SceneConfig, load_model
+from gae_jax.scene.types import Sequence
+
+RIG_CAMERAS = 16
+RIG_SIZE = 256
+AVATAR_MOTION = "avatar motion"  # the sequence name of an avatar folder's flame_param.npz
+
+
+@dataclasses.dataclass(frozen=True)
+class Viewable:
+    """Host data of one viewer session.
+
+    Attributes:
+      title: what the page's header says (folder, prompt).
+      model: the FLAME model (or built-in head) that poses the mesh; expr_names: (E,) labels.
+      avatars: label -> Avatar, the edited one first ("edited", "original"; or "avatar").
+      shapes: identity -> (S,) shape coefficients ("A": the avatar's own).
+      sequences: name -> `types.Sequence` the player offers.
+      intrinsics: (C, 4); w2c: (C, 4, 4); width, height: the camera presets' image size.
+      background: (3,) colour; blend: the blending the avatar was trained with.
+    """
+
+    title: str
+    model: FlameModel
+    expr_names: tuple
+    avatars: dict
+    shapes: dict
+    sequences: dict
+    intrinsics: np.ndarray
+    w2c: np.ndarray
+    width: int
+    height: int
+    background: np.ndarray
+    blend: wabe.Blend
+
+
+def _avatar_file(folder: str) -> str:
+    path = os.path.join(folder, "point_cloud.ply")
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"{folder}: no point_cloud.ply (not a GaussianAvatars avatar "
+                                "folder)")
+    return path
+
+
+def _motion_of(folder: str, model: FlameModel) -> tuple[np.ndarray, Sequence]:
+    """(shape, Sequence) of an avatar folder's flame_param.npz, checked against the model."""
+    shape, frames = avatar_io.load_flame_params(os.path.join(folder, "flame_param.npz"))
+    if shape.size != model.num_shape or frames.expr.shape[-1] != model.num_expr:
+        raise ValueError(f"{folder}/flame_param.npz: {shape.size} shape and "
+                         f"{frames.expr.shape[-1]} expression components, the model has "
+                         f"{model.num_shape} and {model.num_expr} (an avatar of another model?)")
+    seq = Sequence(name=AVATAR_MOTION, identity="A", split="train",
+                   expr=np.asarray(frames.expr), rotation=np.asarray(frames.rotation),
+                   neck=np.asarray(frames.neck), jaw=np.asarray(frames.jaw),
+                   eyes=np.asarray(frames.eyes), translation=np.asarray(frames.translation))
+    return shape, seq
+
+
+def _expr_names(model: FlameModel, assets) -> tuple:
+    if assets is not None and len(assets.expr_names) == model.num_expr:
+        return tuple(assets.expr_names)
+    return tuple(f"expression {i}" for i in range(model.num_expr))
+
+
+def _flame_dims(folder: str):
+    """(S, E) of an avatar folder's flame_param.npz (a FLAME file is cut to what it holds)."""
+    shape, frames = avatar_io.load_flame_params(os.path.join(folder, "flame_param.npz"))
+    return shape.size, int(frames.expr.shape[-1])
+
+
+def from_run(run_dir: str) -> Viewable:
+    """The edited and original avatars of a run folder; FileNotFoundError / ValueError naming
+    what is missing or unreadable."""
+    if not os.path.isdir(run_dir):
+        raise NotADirectoryError(f"{run_dir}: no such folder")
+    edited_dir = os.path.join(run_dir, "edited_avatar")
+    if not os.path.isfile(os.path.join(edited_dir, "point_cloud.ply")):
+        raise FileNotFoundError(f"{run_dir}: no edited_avatar/point_cloud.ply (is it a run "
+                                "folder of python -m gae_jax.train? --avatar DIR views a "
+                                "GaussianAvatars folder)")
+    metrics_path = os.path.join(run_dir, "metrics.json")
+    try:
+        with open(metrics_path) as f:
+            saved = json.load(f)
+        scene_config = SceneConfig(**saved["scene"])
+        config = EditConfig(**saved["config"])
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{metrics_path}: no such file (the run did not finish?)") \
+            from None
+    except (json.JSONDecodeError, KeyError, TypeError) as e:
+        raise ValueError(f"{metrics_path}: not a metrics file of this version ({e})") from None
+    dims = _flame_dims(edited_dir) if scene_config.flame_model else None
+    model, regions = load_model(scene_config.flame_model, scene_config.flame_masks,
+                                dims=dims, head_kind=scene_config.head)
+    assets = None if scene_config.flame_model else head.make_head(scene_config.head)[1]
+    avatars = {}
+    for label in ("edited", "original"):
+        path = _avatar_file(os.path.join(run_dir, f"{label}_avatar"))
+        avatars[label] = avatar_io.load_bound_avatar(path, regions)
+    if avatars["edited"].num != avatars["original"].num:
+        raise ValueError(f"{run_dir}: the edited avatar has {avatars['edited'].num} Gaussians, "
+                         f"the original {avatars['original'].num}")
+    shape, own = _motion_of(edited_dir, model)
+    motion_path = os.path.join(run_dir, motion_io.FILE_NAME)
+    if os.path.isfile(motion_path):
+        sequences, shapes = motion_io.load(motion_path, model.num_expr, model.num_shape)
+    else:
+        sequences, shapes = {AVATAR_MOTION: own}, {"A": shape}
+    evalset = truth.load(os.path.join(run_dir, truth.FILE_NAME))
+    return Viewable(
+        title=f'{os.path.basename(os.path.normpath(run_dir))}: "{config.prompt}"', model=model,
+        expr_names=_expr_names(model, assets), avatars=avatars, shapes=shapes,
+        sequences=sequences, intrinsics=evalset.intrinsics, w2c=evalset.w2c,
+        width=evalset.width, height=evalset.height, background=evalset.background,
+        blend=StepConfig.of(config).blend)
+
+
+def from_avatar(folder: str, head_kind: str = "procedural", flame_model: str = "",
+                flame_masks: str = "", blend: str = "standard") -> Viewable:
+    """A GaussianAvatars folder (point_cloud.ply + flame_param.npz) bound to the built-in head
+    `head_kind` or to `flame_model`; the cameras are the embedded scene's rig, the motions the
+    folder's own plus, for a built-in head, the embedded scene's library."""
+    if not os.path.isdir(folder):
+        raise NotADirectoryError(f"{folder}: no such folder")
+    ply = _avatar_file(folder)
+    dims = _flame_dims(folder) if flame_model else None
+    model, regions = load_model(flame_model, flame_masks, dims=dims, head_kind=head_kind)
+    assets = None if flame_model else head.make_head(head_kind)[1]
+    shape, own = _motion_of(folder, model)
+    sequences, shapes = {AVATAR_MOTION: own}, {"A": shape}
+    if assets is not None:
+        frames = synthetic.make_sequences(16, model.num_expr, head_kind, assets.expr_names)
+        sequences.update({n: s for n, s in frames.items() if s.identity == "A"})
+    intrinsics, w2c = synthetic.camera_rig(
+        RIG_CAMERAS, RIG_SIZE, distance=synthetic.CAMERA_DISTANCE.get(head_kind, 0.6))
+    blends = {"standard": wabe.standard(), "wabe": wabe.wabe(), "wabe_grad": wabe.wabe_grad()}
+    return Viewable(
+        title=os.path.basename(os.path.normpath(folder)), model=model,
+        expr_names=_expr_names(model, assets),
+        avatars={"avatar": avatar_io.load_bound_avatar(ply, regions)}, shapes=shapes,
+        sequences=sequences, intrinsics=intrinsics, w2c=w2c, width=RIG_SIZE, height=RIG_SIZE,
+        background=np.ones(3), blend=blends[blend])
