@@ -16,7 +16,8 @@ from typing import Callable
 
 from gae_jax import loop
 from gae_jax.model.flame_io import FlameFileError
-from gae_jax.util.fileio import PlyError
+from gae_jax.util.compile import use_persistent_cache
+from gae_jax.util.fileio import PlyError, cache_root
 
 USER_ERRORS = (ValueError, FileNotFoundError, NotADirectoryError, FileExistsError,
                FlameFileError, PlyError)
@@ -50,6 +51,31 @@ def add_config_flags(parser: argparse.ArgumentParser, cls, help: dict, title: st
         else:
             group.add_argument(flag, type=TYPES[str(field.type)], default=None, help=text,
                                choices=choices.get(field.name))
+
+
+COMPILE_CACHE_OFF = "off"
+
+
+def add_compile_cache_flag(parser: argparse.ArgumentParser) -> None:
+    """`--compile-cache DIR|off` (default `$GAE_JAX_COMPILE_CACHE`, else the cache root's
+    `xla/`)."""
+    parser.add_argument("--compile-cache", default=None, metavar="DIR|off",
+                        help="keep compiled programs on disk here, so a second run skips most "
+                             "compilation ('off': compile every run; default: "
+                             "$GAE_JAX_COMPILE_CACHE, else ~/.cache/gae_jax/xla)")
+
+
+def compile_cache_folder(choice) -> str | None:
+    """The folder `--compile-cache` names (None: off)."""
+    choice = choice or os.environ.get("GAE_JAX_COMPILE_CACHE") or os.path.join(
+        cache_root(), "xla")
+    return None if choice == COMPILE_CACHE_OFF else choice
+
+
+def use_compile_cache(choice) -> None:
+    """Turns the persistent compilation cache on where `--compile-cache` says (an entry point
+    calls this before it compiles anything)."""
+    use_persistent_cache(compile_cache_folder(choice))
 
 
 def given(args: argparse.Namespace, cls) -> dict:

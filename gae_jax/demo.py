@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gae_jax import cli
 from gae_jax.model import avatar, flame, head
 from gae_jax.render import splat, wabe
 from gae_jax.render.camera import look_at_w2c, make_camera
@@ -85,7 +86,9 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--head", default="procedural", choices=head.HEAD_KINDS,
                         help="the built-in head")
+    cli.add_compile_cache_flag(parser)
     args = parser.parse_args(argv)
+    cli.use_compile_cache(args.compile_cache)
     if args.size < 16 or args.per_face < 1:
         parser.error("--size must be >= 16 and --per-face >= 1")
 

@@ -57,7 +57,9 @@ def main(argv=None) -> int:
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("run_dir", help="folder written by python -m gae_jax.train")
     p.add_argument("--clip-folder", default="", help="local CLIP folder for CLIP-S / CLIP-C")
+    cli.add_compile_cache_flag(p)
     args = p.parse_args(argv)
+    cli.use_compile_cache(args.compile_cache)
     out = {}
 
     def body():

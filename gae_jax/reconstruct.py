@@ -79,11 +79,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="replace an avatar already in --out")
     cli.add_config_flags(p, SceneConfig, SCENE_HELP, "scene")
     cli.add_config_flags(p, ReconstructConfig, HELP, "reconstruction")
+    cli.add_compile_cache_flag(p)
     return p
 
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    cli.use_compile_cache(args.compile_cache)
     loaded = {}
 
     def prepare():

@@ -36,12 +36,11 @@ from gae_jax.fit.fit import fit
 from gae_jax.model import avatar_io
 from gae_jax.scene.load import SCENE_HELP, SceneConfig, load_scene
 from gae_jax.scene.synthetic import scene_fingerprint
-from gae_jax.util.fileio import PlyError, atomic_write_bytes
+from gae_jax.util.fileio import PlyError, atomic_write_bytes, cache_root
 
 
 def cache_dir() -> str:
-    return os.environ.get("GAE_JAX_CACHE") or os.path.join(os.path.expanduser("~"), ".cache",
-                                                            "gae_jax")
+    return cache_root()
 
 
 def original_avatar(scene, iterations: int, progress: bool):
@@ -141,6 +140,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--keep-checkpoint", action="store_true", help="keep the edit checkpoint of "
                    "a finished run (~13 MB), so that --resume --iterations N can extend it")
     p.add_argument("--no-video", action="store_true", help="skip the MP4")
+    cli.add_compile_cache_flag(p)
     cli.add_config_flags(p, SceneConfig, SCENE_HELP, "scene")
     cli.add_config_flags(p, EditConfig, edit_config.HELP, "edit", edit_config.CHOICES)
     return p
@@ -148,6 +148,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    cli.use_compile_cache(args.compile_cache)
     inputs = {}
 
     def prepare():

@@ -349,6 +349,7 @@ def parser() -> argparse.ArgumentParser:
                    help="image: our renderer's pictures (exact); splats: viser's renderer")
     p.add_argument("--screenshots", default="", help="folder for screenshots (default: "
                    "RUN_DIR/screenshots, or ./screenshots with --avatar)")
+    cli.add_compile_cache_flag(p)
     return p
 
 
@@ -370,6 +371,7 @@ def start(args: argparse.Namespace) -> Viewer:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    cli.use_compile_cache(args.compile_cache)
     out = {}
 
     def body():

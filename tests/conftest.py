@@ -9,6 +9,9 @@ import os
 os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
                            + " --xla_force_host_platform_device_count=2").strip()
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# The entry points keep compiled programs in ~/.cache/gae_jax/xla by default; tests that call
+# them in-process must not write there (a test that checks the cache names its own folder).
+os.environ["GAE_JAX_COMPILE_CACHE"] = "off"
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

@@ -1,5 +1,8 @@
 """fast_jit computes what jax.jit computes and adds 512-bit vectors exactly on AVX-512 CPUs;
-the demo renders the head."""
+the demo renders the head; a second run of an entry point compiles nothing new with the
+persistent compilation cache on."""
+
+import os
 
 import jax
 import jax.numpy as jnp
@@ -30,3 +33,32 @@ def test_demo_writes_the_head_without_overflow(tmp_path, kind):
     data = (tmp_path / "head.png").read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
     assert report["gaussians"] == report["faces"] and report["overflow_tiles"] == 0
+
+
+def test_a_second_run_loads_every_program_from_the_compilation_cache(tmp_path):
+    import subprocess
+    import sys
+
+    cache = tmp_path / "xla"
+
+    def run(out):
+        subprocess.run([sys.executable, "-m", "gae_jax.demo", "--out", str(tmp_path / out),
+                        "--size", "32", "--compile-cache", str(cache)], check=True,
+                       capture_output=True, cwd=os.getcwd())
+        return sorted(os.listdir(cache))
+
+    first = run("a")
+    assert any(name.startswith("jit_render") for name in first), first
+    assert run("b") == first  # every program came from the cache: nothing new was written
+
+
+def test_the_compilation_cache_flag_and_environment_choose_the_folder(monkeypatch, tmp_path):
+    from gae_jax import cli
+
+    monkeypatch.setenv("GAE_JAX_CACHE", str(tmp_path))
+    monkeypatch.delenv("GAE_JAX_COMPILE_CACHE")
+    assert cli.compile_cache_folder(None) == os.path.join(str(tmp_path), "xla")
+    assert cli.compile_cache_folder("off") is None
+    assert cli.compile_cache_folder(str(tmp_path / "mine")) == str(tmp_path / "mine")
+    monkeypatch.setenv("GAE_JAX_COMPILE_CACHE", "off")
+    assert cli.compile_cache_folder(None) is None

@@ -32,7 +32,7 @@ from gae_jax.model import flame, head
 from gae_jax.render.camera import Camera, look_at_w2c, make_camera
 from gae_jax.scene.raycast import raycast_views
 from gae_jax.scene.types import Scene, Sequence
-from gae_jax.util.fileio import atomic_write_bytes
+from gae_jax.util.fileio import atomic_write_bytes, cache_root
 
 SCENE_VERSION = 3
 LIGHT_DIRECTION = np.array([0.35, 0.55, 0.75])  # in head space, towards the light
@@ -271,8 +271,7 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
         params["head"] = head_kind
         params["model"] = _model_fingerprint(model, assets)
     key = _cache_key(params)
-    cache_dir = cache_dir or os.environ.get("GAE_JAX_CACHE") or os.path.join(
-        os.path.expanduser("~"), ".cache", "gae_jax")
+    cache_dir = cache_dir or cache_root()
     path = os.path.join(cache_dir, f"scene-{key}.npz")
     sequences = make_sequences(frames_per_sequence, model.num_expr, head_kind, assets.expr_names)
     intrinsics, w2c = camera_rig(num_cameras, size, distance=CAMERA_DISTANCE[head_kind])

@@ -10,6 +10,13 @@ import numpy as np
 READABLE_FILE_MODE = 0o644
 
 
+def cache_root() -> str:
+    """Where gae_jax caches scenes, avatars and compiled programs: `$GAE_JAX_CACHE`, else
+    ~/.cache/gae_jax."""
+    return os.environ.get("GAE_JAX_CACHE") or os.path.join(os.path.expanduser("~"), ".cache",
+                                                            "gae_jax")
+
+
 def atomic_write_bytes(path: str, data: bytes) -> None:
     """Writes `data` to `path` so that readers see either the old file or the whole new one."""
     folder = os.path.dirname(os.path.abspath(path))
