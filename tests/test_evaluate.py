@@ -108,3 +108,29 @@ def test_drift_is_psnr_against_the_untouched_render_outside_the_dilated_edit():
     assert drift["background"] == 99.0 and drift["eyes"] is None
     style = metrics.outside_edit(regions, None, dilate=0)
     np.testing.assert_array_equal(style, regions < 0)
+
+
+def test_change_counts_every_visible_pixel_of_an_occluded_region_the_edits_border_included():
+    rng = np.random.default_rng(2)
+    untouched = rng.random((2, 30, 30, 3))
+    regions = np.full((2, 30, 30), head.REGION_ID["skin"])
+    regions[:, 10:14, 10:20] = head.REGION_ID["lips"]
+    regions[:, 14:16, 10:20] = head.REGION_ID["teeth"]  # right under the lips: inside the
+    regions[0, 20:22, 3:5] = head.REGION_ID["iris"]      # drift's dilation
+    regions[0, 21, 4] = head.REGION_ID["pupil"]
+    ours = untouched.copy()
+    ours[regions == head.REGION_ID["lips"]] = 0.0  # the edit itself
+    assert metrics.change_scores(ours, untouched, regions, "lips") == dict(
+        teeth=99.0, tongue=None, iris=99.0)
+    teeth = regions == head.REGION_ID["teeth"]
+    ours[teeth] = np.clip(ours[teeth] * 0.5 + 0.4, 0, 1)  # the blue leaks into the teeth
+    eye = np.isin(regions, [head.REGION_ID["iris"], head.REGION_ID["pupil"]])
+    ours[eye] += 0.02
+    change = metrics.change_scores(ours, untouched, regions, "lips")
+    mse = np.mean((ours[teeth] - untouched[teeth]) ** 2)
+    assert change["teeth"] == pytest.approx(10 * np.log10(1 / mse), abs=1e-3)
+    assert change["iris"] == pytest.approx(10 * np.log10(1 / 0.02 ** 2), abs=1e-3)
+    assert metrics.drift_scores(ours, untouched, regions, "lips")["teeth"] is None  # unseen
+    assert metrics.change_scores(ours, untouched, regions, "iris")["iris"] == pytest.approx(
+        10 * np.log10(1 / 0.02 ** 2), abs=1e-3)  # the pupil alone, the iris being edited
+    assert metrics.change_scores(ours, untouched, regions, "teeth")["teeth"] is None

@@ -2,8 +2,10 @@
 
 Scores pool squared errors over all pixels of a region across frames and cameras before taking
 PSNR (a frame where a region is absent adds nothing): `whole`, the edited region, and each
-preserved group (`teeth`, `eyes` = sclera + iris + pupil, `mouth`, `rest` = the head's other
-regions; background pixels count only in `whole`).
+preserved group (`teeth`, `eyes` = sclera + iris + pupil, `mouth`, `tongue`, `rest` = the head's
+other regions; background pixels count only in `whole`). Beside the error against a reference,
+two scores of ours against the untouched avatar: `drift` (outside the dilated edit) and `change`
+(over each occluded region wherever the truth shows it, the edit's border included).
 """
 
 from __future__ import annotations
@@ -17,7 +19,10 @@ from gae_jax.model import head
 from gae_jax.render import losses
 
 PRESERVED_GROUPS = {"teeth": ("teeth",), "eyes": ("sclera", "iris", "pupil"),
-                    "mouth": ("mouth",)}
+                    "mouth": ("mouth",), "tongue": ("tongue",)}
+# Regions another part of the face hides most of the time, where an edit of the occluder leaks.
+OCCLUDED_GROUPS = {"teeth": ("teeth",), "tongue": ("tongue",), "iris": ("iris", "pupil")}
+MAX_PSNR = 99.0  # reported for identical pixels
 
 
 def region_masks(regions: np.ndarray, edited_region: str | None) -> dict:
@@ -104,9 +109,29 @@ def drift_scores(ours: np.ndarray, untouched: np.ndarray, regions: np.ndarray,
         if not mask.any():
             out[name] = None
             continue
-        mse = float(np.mean((p[mask] - u[mask]) ** 2))
-        out[name] = round(min(10 * np.log10(1.0 / max(mse, 1e-12)), 99.0), 3)
+        out[name] = _capped_psnr(p[mask], u[mask])
     return out
+
+
+def change_scores(ours: np.ndarray, untouched: np.ndarray, regions: np.ndarray,
+                  edited_region: str | None) -> dict:
+    """{group: PSNR} of ours against the untouched avatar's render over every pixel of each
+    occluded group (`OCCLUDED_GROUPS`: teeth, tongue, iris + pupil) that the truth's (..., H, W)
+    labels show, next to the edit or not: how much an edit of the lips or lids leaked into what
+    they hide. None where a group is absent or is the edited region; at most 99 dB."""
+    p = _float(ours).reshape((-1,) + np.shape(ours)[-3:])
+    u = _float(untouched).reshape(p.shape)
+    regions = np.asarray(regions).reshape(p.shape[:-1])
+    out = {}
+    for group, names in OCCLUDED_GROUPS.items():
+        mask = np.isin(regions, [head.REGION_ID[n] for n in names if n != edited_region])
+        out[group] = _capped_psnr(p[mask], u[mask]) if mask.any() else None
+    return out
+
+
+def _capped_psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a - b) ** 2))
+    return round(min(10 * np.log10(1.0 / max(mse, 1e-12)), MAX_PSNR), 3)
 
 
 def flicker(ours: np.ndarray, truth: np.ndarray, mask: np.ndarray | None = None) -> float:

@@ -6,12 +6,13 @@ from gae_jax.evaluation.protocols import PROTOCOLS
 
 SUMMARY_COLUMNS = (("psnr", "whole"), ("psnr", "edited"), ("psnr", "teeth"), ("psnr", "eyes"),
                    ("psnr", "rest"), ("ssim", "whole"), ("ssim", "edited"), ("lpips", "whole"),
-                   ("lpips", "edited"), ("drift", "whole"))
+                   ("lpips", "edited"), ("drift", "whole"), ("change", "teeth"),
+                   ("change", "iris"))
 
 
 def summary_table(results: dict) -> str:
     """Markdown table of `score.evaluate_avatars`' results: a row per protocol and avatar."""
-    head_cells = [f"{m.upper() if m != 'drift' else 'drift PSNR'} {r}"
+    head_cells = [f"{m.upper() if m not in ('drift', 'change') else m + ' PSNR'} {r}"
                   for m, r in SUMMARY_COLUMNS] + ["flicker", "CLIP-S",
                                                                       "CLIP-C"]
     lines = ["| protocol | avatar | " + " | ".join(head_cells) + " |",

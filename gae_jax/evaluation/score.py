@@ -34,7 +34,8 @@ def evaluate_avatars(evalset: EvalSet, edited: Avatar, original: Avatar, tile_ca
     """{protocol: {ours, original_avatar: {metric: {region: value}}, flicker, [clip_s,
     clip_c]}, clip, truth}: the run's evaluation (metrics.json, evaluation.json). Ours also
     has `drift`: PSNR against the untouched avatar outside the dilated edit
-    (`metrics.drift_scores`)."""
+    (`metrics.drift_scores`), and `change`: the same over each occluded region where the truth
+    shows it (`metrics.change_scores`)."""
     render = rigs.make_view_renderer(blend)
     clip = clip_score.load_clip(clip_folder) if clip_folder else None
     captions = instructions.captions(evalset.prompt)
@@ -47,6 +48,7 @@ def evaluate_avatars(evalset: EvalSet, edited: Avatar, original: Avatar, tile_ca
                       original_avatar=metrics.region_scores(before, frames.truth,
                                                             frames.regions, region))
         scores["ours"]["drift"] = metrics.drift_scores(ours, before, frames.regions, region)
+        scores["ours"]["change"] = metrics.change_scores(ours, before, frames.regions, region)
         clip_ours = render_frames(render, edited, evalset, clip_frames, tile_capacity)[:, 0]
         clip_before = render_frames(render, original, evalset, clip_frames, tile_capacity)[:, 0]
         masks = metrics.region_masks(clip_frames.regions[:, 0], region)
