@@ -4,7 +4,10 @@
 
 Prints one JSON object per configuration (and a summary list at the end): median (and minimum)
 milliseconds after warm-up, (pixel, Gaussian) pair evaluations per second, overflowed tiles, tile capacity and
-peak RSS. Each configuration runs in its own process so that peak RSS is its own. The tile capacity
+peak RSS, and the same scene timed in the same process with `benchmarks/tile_reference.py` (a
+plain torch transcription of the standard tile algorithm, autograd for the backward; best of 3)
+with our speed-up over it (our best time against its best time). Each configuration runs in its
+own process so that peak RSS is its own (the reference's torch tensors count in it). The tile capacity
 is the smallest multiple of 32 that holds every tile's list (so the image is exact; overflow is
 reported and must be 0).
 """
@@ -19,13 +22,51 @@ import subprocess
 import sys
 import time
 
-# For orientation only (from the issue, not measured by this script): a straightforward CPU
-# implementation of gsplat's algorithm on this machine, seconds (forward, forward + backward).
-GSPLAT_CPU_REFERENCE_S = {"50000x256": (0.44, 1.5), "50000x512": (0.5, 2.2)}
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+REFERENCE_REPEATS = 3  # the tile reference is slow; its best of 3 is its time
+
+
+def reference_ms(g, camera, weights) -> tuple:
+    """(forward, forward + backward) best-of milliseconds of `tile_reference` (torch, float32,
+    every core) on the same scene and camera, in this process."""
+    import numpy as np
+    import torch
+
+    from benchmarks import tile_reference
+
+    torch.set_num_threads(os.cpu_count() or 1)
+    t = {k: torch.tensor(np.asarray(getattr(g, k), np.float32))
+         for k in ("means", "quats", "scales", "opacities", "colors")}
+    intr = torch.tensor(np.asarray(camera.intrinsics, np.float32))
+    w2c = torch.tensor(np.asarray(camera.w2c, np.float32))
+    bg = torch.zeros(3)
+    w = torch.tensor(np.asarray(weights, np.float32))
+
+    def forward():
+        with torch.no_grad():
+            tile_reference.render(t["means"], t["quats"], t["scales"], t["opacities"],
+                                  t["colors"], intr, w2c, camera.width, camera.height, bg)
+
+    def forward_backward():
+        leaves = {k: v.clone().requires_grad_(True) for k, v in t.items()}
+        image = tile_reference.render(leaves["means"], leaves["quats"], leaves["scales"],
+                                      leaves["opacities"], leaves["colors"], intr, w2c,
+                                      camera.width, camera.height, bg)
+        (image * w).sum().backward()
+
+    def best(fn):
+        times = []
+        for _ in range(REFERENCE_REPEATS):
+            start = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - start)
+        return 1e3 * min(times)
+
+    return best(forward), best(forward_backward)
 
 
 def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
-            options: str) -> dict:
+            options: str, reference: bool) -> dict:
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -70,6 +111,7 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
     for _ in range(5):
         np.exp(exp_input)
     numpy_exp_ns = (time.perf_counter() - start) / (5 * exp_input.size) * 1e9
+    ref = reference_ms(g, camera, weights) if reference else None
     out = jax.jit(image)(g)
     pairs = int(jnp.sum(probe.counts)) * 256  # pixel-Gaussian pairs the tile lists imply
     walked = int(out.stats.num_slots) * 256 * int(probe.counts.shape[0])
@@ -85,6 +127,10 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
         numpy_exp_ns=round(numpy_exp_ns, 3),
         peak_rss_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
         devices=str(jax.devices()), jax_version=jax.__version__,
+        **({} if ref is None else dict(
+            reference_forward_ms=round(ref[0], 1), reference_forward_backward_ms=round(ref[1], 1),
+            speedup_vs_reference_forward=round(ref[0] / fwd_min, 2),
+            speedup_vs_reference_forward_backward=round(ref[1] / fwd_bwd_min, 2))),
     )
 
 
@@ -99,31 +145,27 @@ def main(argv=None):
                         choices=["fast", "default"],
                         help="fast: gae_jax.util.compile.compiler_options(); default: plain jax.jit. "
                              "Both run, interleaved per configuration, by default.")
+    parser.add_argument("--no-reference", action="store_true",
+                        help="skip timing benchmarks/tile_reference.py (torch) in the same process")
     parser.add_argument("--one", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.one:
         num, size = (int(v) for v in args.one.split("x"))
         print(json.dumps(run_one(num, size, args.repeats, args.blend, args.unroll,
-                                 args.options[0])))
+                                 args.options[0], not args.no_reference)))
         return
     results = []
     for config in args.configs:
         for options in args.options:
             cmd = [sys.executable, os.path.abspath(__file__), "--one", config, "--repeats",
                    str(args.repeats), "--blend", args.blend, "--unroll", str(args.unroll),
-                   "--options", options]
+                   "--options", options] + (["--no-reference"] if args.no_reference else [])
             line = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
             result = json.loads(line.strip().splitlines()[-1])
             result["options"] = options
-            reference = GSPLAT_CPU_REFERENCE_S.get(config)
-            if reference:
-                result["speedup_vs_reference_forward"] = round(
-                    1e3 * reference[0] / result["forward_ms"], 2)
-                result["speedup_vs_reference_forward_backward"] = round(
-                    1e3 * reference[1] / result["forward_backward_ms"], 2)
             print(json.dumps(result), flush=True)
             results.append(result)
-    print(json.dumps(dict(reference_seconds=GSPLAT_CPU_REFERENCE_S, results=results), indent=1))
+    print(json.dumps(dict(results=results), indent=1))
 
 
 if __name__ == "__main__":
