@@ -102,8 +102,13 @@ def test_the_page_shows_the_head_and_the_jaw_slider_moves_it(tmp_path, browser):
         button = browser.find_element(By.XPATH, "//button[normalize-space(.)='Screenshot']")
         browser.execute_script("arguments[0].scrollIntoView({block: 'center'})", button)
         button.click()
-        shots = wait_for(lambda: os.listdir(tmp_path / "shots") if (tmp_path / "shots").is_dir()
-                         else None, "the screenshot file")
+        def written():  # the finished file, not atomic_write_bytes' temporary one
+            folder = tmp_path / "shots"
+            names = [n for n in os.listdir(folder) if n.endswith(".png")
+                     and not n.startswith(".")] if folder.is_dir() else []
+            return names or None
+
+        shots = wait_for(written, "the screenshot file")
         png = cv2.imread(str(tmp_path / "shots" / shots[0]))
         assert png.shape[0] == 128 and head_fraction(png) > HEAD_FRACTION
     finally:
