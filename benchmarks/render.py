@@ -77,8 +77,7 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
     from gae_jax.render.projection import project
     from gae_jax.render.tiles import bin_gaussians
 
-    blend = {"standard": wabe.standard(), "wabe": wabe.wabe(), "wabe_grad": wabe.wabe_grad()}[
-        blend_name]
+    blend = wabe.named(blend_name)
     g, camera = random_frustum_scene(num, size, size, seed=0)
     p = project(g.means, g.quats, g.scales, g.opacities, camera)
     probe = bin_gaussians(p.means2d, p.extents, p.depths, p.visible, size, size, 1)

@@ -21,6 +21,7 @@ ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
 NEAR = 0.01
+COV_DILATION = 0.3
 
 
 def project(means, quats, scales, opacities, intrinsics, w2c, width, height):
@@ -57,8 +58,6 @@ def project(means, quats, scales, opacities, intrinsics, w2c, width, height):
     visible = (z > NEAR) & (det > 0) & reach
     return means2d, conics, z, extents, visible
 
-
-COV_DILATION = 0.3
 
 
 def tile_lists(means2d, extents, depths, visible, width, height):

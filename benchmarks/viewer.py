@@ -54,7 +54,7 @@ def main(argv=None) -> dict:
     name = "mix" if "mix" in v.sequences else next(iter(v.sequences))
     seq = v.sequences[name]
     avatar, original = v.avatars["edited"], v.avatars["original"]
-    front = int(np.argmin(v.w2c[:, 2, 2]))  # the camera looking most nearly along -z (frontal)
+    front = frames.front_camera(v.w2c)
 
     def params(i):
         values = pose.values_of_frame(seq, i % seq.num_frames)

@@ -39,16 +39,12 @@ from gae_jax.scene.synthetic import scene_fingerprint
 from gae_jax.util.fileio import PlyError, atomic_write_bytes, cache_root
 
 
-def cache_dir() -> str:
-    return cache_root()
-
-
 def original_avatar(scene, iterations: int, progress: bool):
     """The reconstruction of the scene's identity A, from the cache or fitted now (then cached).
     The cache key covers the scene's ground truth and every reconstruction setting."""
     config = ReconstructConfig(iterations=iterations)
     settings = hashlib.sha256(json.dumps(dataclasses.asdict(config), sort_keys=True).encode())
-    path = os.path.join(cache_dir(), f"avatar-{scene_fingerprint(scene)}-"
+    path = os.path.join(cache_root(), f"avatar-{scene_fingerprint(scene)}-"
                                      f"{settings.hexdigest()[:12]}.ply")
     if os.path.isfile(path):
         try:

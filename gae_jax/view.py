@@ -58,7 +58,6 @@ class _Client:
     """What the viewer keeps per browser tab: the last picture and its render time."""
 
     image: np.ndarray | None = None
-    seconds: float = 0.0
     placed: bool = False  # moved to the frontal rig camera
 
 
@@ -197,13 +196,6 @@ class Viewer:
             client.camera.position = position
             client.camera.look_at = target
 
-    def _front_camera(self) -> int:
-        """The rig camera nearest the rig's mean viewing direction (the frontal one)."""
-        w2c = np.asarray(self.viewable.w2c)
-        dirs = -w2c[:, 2, :3]  # from the head towards each camera
-        mean = dirs.mean(0)
-        return int(np.argmax(dirs @ (mean / max(np.linalg.norm(mean), 1e-9))))
-
     def _connected(self, client) -> None:
         self.clients[client.client_id] = _Client()
         client.camera.on_update(self._camera_moved)
@@ -216,8 +208,10 @@ class Viewer:
             # The browser's first camera message: only now can its camera be moved (viser
             # refuses to before), so the view starts at the frontal rig camera.
             state.placed = True
-            self.use_rig_camera(camera.client, self._front_camera())
-        self._request(camera.client.client_id)
+            self.use_rig_camera(camera.client, frames.front_camera(self.viewable.w2c))
+            self._request(camera.client.client_id)
+        elif self.display == "image":  # viser's own splat renderer follows the camera itself
+            self._request(camera.client.client_id)
 
     # -------------------------------------------------------------------------- rendering
     def _request(self, client_id) -> None:
@@ -267,7 +261,7 @@ class Viewer:
         client.scene.set_background_image(image, format="jpeg", jpeg_quality=92)
         state = self.clients.get(client.client_id)
         if state is not None:
-            state.image, state.seconds = image, seconds
+            state.image = image
         self.status.content = (f"render: {1000 * seconds:.0f} ms "
                                f"({image.shape[1]}x{image.shape[0]}"
                                f"{', first at this size: compiling' if first else ''})")

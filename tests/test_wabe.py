@@ -53,3 +53,11 @@ def test_bad_modes_and_betas_are_refused():
     for beta in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="beta must be"):
             wabe.wabe(beta)
+
+
+def test_blends_are_found_by_name():
+    assert wabe.named("standard", 3.0) == wabe.standard()
+    assert wabe.named("wabe", 3.0) == wabe.wabe(3.0)
+    assert wabe.named("wabe_grad") == wabe.wabe_grad()
+    with pytest.raises(ValueError, match="unknown blend"):
+        wabe.named("soft")

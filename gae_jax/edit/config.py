@@ -174,8 +174,7 @@ class StepConfig:
 
     @classmethod
     def of(cls, config: EditConfig) -> "StepConfig":
-        blend = {"standard": wabe.standard(), "wabe": wabe.wabe(config.beta),
-                 "wabe_grad": wabe.wabe_grad(config.beta)}[config.blend]
+        blend = wabe.named(config.blend, config.beta)
         fields = {f.name: getattr(config, f.name) for f in dataclasses.fields(cls)
                   if f.name != "blend"}
         return cls(blend=blend, **fields)

@@ -79,3 +79,13 @@ def wabe(beta: float = PAPER_BETA) -> Blend:
 def wabe_grad(beta: float = PAPER_BETA) -> Blend:
     """Standard image, gradients weighted per Gaussian and pixel by w_k."""
     return Blend("wabe_grad", float(beta))
+
+
+BLENDS = {"standard": lambda beta: standard(), "wabe": wabe, "wabe_grad": wabe_grad}
+
+
+def named(name: str, beta: float = PAPER_BETA) -> Blend:
+    """The blend called `name` ("standard", "wabe" or "wabe_grad"; beta unused by standard)."""
+    if name not in BLENDS:
+        raise ValueError(f"unknown blend {name!r}; choose from {', '.join(BLENDS)}")
+    return BLENDS[name](beta)

@@ -20,19 +20,19 @@ from gae_jax.scene import nersemble, synthetic
 from gae_jax.scene.types import Scene
 
 
-def load_model(flame_model: str = "", flame_masks: str = "", data: str = "", dims=None,
-               head_kind: str = "procedural"):
-    """(FlameModel, (F,) face regions): the built-in head `head_kind`, or a FLAME file with as
-    many shape / expression components as `dims` = (S, E) says or, without it, as the data's
-    flame_param files hold (300 / 100 without either)."""
+def load_model(flame_model: str = "", flame_masks: str = "", data: str = "", dims=None):
+    """(FlameModel, (F,) face regions): the embedded head, or a FLAME file with as many shape /
+    expression components as `dims` = (S, E) says or, without it, as the data's flame_param
+    files hold (300 / 100 without either)."""
     if not flame_model:
         if flame_masks:
             raise ValueError("--flame-masks needs --flame-model (the embedded head has its "
                              "own regions)")
-        model, assets = head.make_head(head_kind)
+        model, assets = head.make_head()
         return model, assets.face_regions
     n_shape, n_expr = 300, 100
-    params = sorted(glob.glob(os.path.join(data, "flame_param", "*.npz"))) if data else []
+    params = [] if dims is not None or not data else sorted(
+        glob.glob(os.path.join(data, "flame_param", "*.npz")))
     if dims is not None:
         n_shape, n_expr = dims
     elif params:

@@ -61,6 +61,15 @@ def view_of_camera(intrinsics, w2c, height: int):
     return position, wxyz / np.linalg.norm(wxyz), fov_y
 
 
+def front_camera(w2c) -> int:
+    """Index of the rig camera (w2c (C, 4, 4)) nearest the rig's mean viewing direction: the
+    frontal one of a rig around a face."""
+    w2c = np.asarray(w2c, np.float64)
+    dirs = -w2c[:, 2, :3]  # from the head towards each camera
+    mean = dirs.mean(0)
+    return int(np.argmax(dirs @ (mean / max(np.linalg.norm(mean), 1e-9))))
+
+
 def side_by_side(camera: Camera) -> Camera:
     """The camera of one half of a side-by-side picture: half the width over half the
     viewport, so the same focal length (in pixels) keeps the view's scale; only the principal

@@ -66,9 +66,9 @@ def _avatar_file(folder: str) -> str:
     return path
 
 
-def _motion_of(folder: str, model: FlameModel) -> tuple[np.ndarray, Sequence]:
-    """(shape, Sequence) of an avatar folder's flame_param.npz, checked against the model."""
-    shape, frames = avatar_io.load_flame_params(os.path.join(folder, "flame_param.npz"))
+def _motion_of(shape, frames, folder: str, model: FlameModel) -> tuple[np.ndarray, Sequence]:
+    """(shape, Sequence) of an avatar folder's flame_param.npz (read as `shape`, `frames`),
+    checked against the model."""
     if shape.size != model.num_shape or frames.expr.shape[-1] != model.num_expr:
         raise ValueError(f"{folder}/flame_param.npz: {shape.size} shape and "
                          f"{frames.expr.shape[-1]} expression components, the model has "
@@ -86,10 +86,19 @@ def _expr_names(model: FlameModel, assets) -> tuple:
     return tuple(f"expression {i}" for i in range(model.num_expr))
 
 
-def _flame_dims(folder: str):
-    """(S, E) of an avatar folder's flame_param.npz (a FLAME file is cut to what it holds)."""
+def _model_for(folder: str, head_kind: str, flame_model: str, flame_masks: str):
+    """(model, face regions, built-in head assets or None, shape, frames): the model an avatar
+    folder is bound to, a FLAME file cut to as many components as its flame_param.npz holds."""
     shape, frames = avatar_io.load_flame_params(os.path.join(folder, "flame_param.npz"))
-    return shape.size, int(frames.expr.shape[-1])
+    if not flame_model:
+        if flame_masks:
+            raise ValueError("--flame-masks needs --flame-model (the embedded head has its "
+                             "own regions)")
+        model, assets = head.make_head(head_kind)
+        return model, assets.face_regions, assets, shape, frames
+    model, regions = load_model(flame_model, flame_masks,
+                                dims=(shape.size, int(frames.expr.shape[-1])))
+    return model, regions, None, shape, frames
 
 
 def from_run(run_dir: str) -> Viewable:
@@ -113,10 +122,8 @@ def from_run(run_dir: str) -> Viewable:
             from None
     except (json.JSONDecodeError, KeyError, TypeError) as e:
         raise ValueError(f"{metrics_path}: not a metrics file of this version ({e})") from None
-    dims = _flame_dims(edited_dir) if scene_config.flame_model else None
-    model, regions = load_model(scene_config.flame_model, scene_config.flame_masks,
-                                dims=dims, head_kind=scene_config.head)
-    assets = None if scene_config.flame_model else head.make_head(scene_config.head)[1]
+    model, regions, assets, shape, frames = _model_for(
+        edited_dir, scene_config.head, scene_config.flame_model, scene_config.flame_masks)
     avatars = {}
     for label in ("edited", "original"):
         path = _avatar_file(os.path.join(run_dir, f"{label}_avatar"))
@@ -124,7 +131,7 @@ def from_run(run_dir: str) -> Viewable:
     if avatars["edited"].num != avatars["original"].num:
         raise ValueError(f"{run_dir}: the edited avatar has {avatars['edited'].num} Gaussians, "
                          f"the original {avatars['original'].num}")
-    shape, own = _motion_of(edited_dir, model)
+    shape, own = _motion_of(shape, frames, edited_dir, model)
     motion_path = os.path.join(run_dir, motion_io.FILE_NAME)
     if os.path.isfile(motion_path):
         sequences, shapes = motion_io.load(motion_path, model.num_expr, model.num_shape)
@@ -147,20 +154,18 @@ def from_avatar(folder: str, head_kind: str = "procedural", flame_model: str = "
     if not os.path.isdir(folder):
         raise NotADirectoryError(f"{folder}: no such folder")
     ply = _avatar_file(folder)
-    dims = _flame_dims(folder) if flame_model else None
-    model, regions = load_model(flame_model, flame_masks, dims=dims, head_kind=head_kind)
-    assets = None if flame_model else head.make_head(head_kind)[1]
-    shape, own = _motion_of(folder, model)
+    model, regions, assets, shape, frames = _model_for(folder, head_kind, flame_model,
+                                                       flame_masks)
+    shape, own = _motion_of(shape, frames, folder, model)
     sequences, shapes = {AVATAR_MOTION: own}, {"A": shape}
     if assets is not None:
         frames = synthetic.make_sequences(16, model.num_expr, head_kind, assets.expr_names)
         sequences.update({n: s for n, s in frames.items() if s.identity == "A"})
     intrinsics, w2c = synthetic.camera_rig(
         RIG_CAMERAS, RIG_SIZE, distance=synthetic.CAMERA_DISTANCE.get(head_kind, 0.6))
-    blends = {"standard": wabe.standard(), "wabe": wabe.wabe(), "wabe_grad": wabe.wabe_grad()}
     return Viewable(
         title=os.path.basename(os.path.normpath(folder)), model=model,
         expr_names=_expr_names(model, assets),
         avatars={"avatar": avatar_io.load_bound_avatar(ply, regions)}, shapes=shapes,
         sequences=sequences, intrinsics=intrinsics, w2c=w2c, width=RIG_SIZE, height=RIG_SIZE,
-        background=np.ones(3), blend=blends[blend])
+        background=np.ones(3), blend=wabe.named(blend))
