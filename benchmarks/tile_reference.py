@@ -2,7 +2,7 @@
 for timing our renderer against in the same run (`benchmarks/render.py`).
 
 The steps gsplat runs, written directly: EWA projection (perspective Jacobian clamped to 1.3x
-the field of view, 0.3 px dilation), a screen bounding box per Gaussian (the opacity-aware one
+the field of view, 0.1 px^2 dilation as ours), a screen bounding box per Gaussian (the opacity-aware one
 our renderer uses, so both draw exactly the same image), 16x16 tiles, each tile's Gaussians
 sorted by (depth, index), and per tile a dense front-to-back composite over its pixels:
 alpha = min(0.99, o exp(-q/2)), contributions under 1/255 skipped, a pixel stops before its
@@ -21,7 +21,7 @@ ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
 NEAR = 0.01
-COV_DILATION = 0.3
+COV_DILATION = 0.1
 
 
 def project(means, quats, scales, opacities, intrinsics, w2c, width, height):

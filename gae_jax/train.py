@@ -34,6 +34,7 @@ from gae_jax.evaluation import clip_score, report, score, truth
 from gae_jax.fit.config import ReconstructConfig
 from gae_jax.fit.fit import fit
 from gae_jax.model import avatar_io
+from gae_jax.render import projection
 from gae_jax.scene.load import SCENE_HELP, SceneConfig, load_scene
 from gae_jax.scene.synthetic import scene_fingerprint
 from gae_jax.util.fileio import PlyError, atomic_write_bytes, cache_root
@@ -41,9 +42,11 @@ from gae_jax.util.fileio import PlyError, atomic_write_bytes, cache_root
 
 def original_avatar(scene, iterations: int, progress: bool):
     """The reconstruction of the scene's identity A, from the cache or fitted now (then cached).
-    The cache key covers the scene's ground truth and every reconstruction setting."""
+    The cache key covers the scene's ground truth, every reconstruction setting and the
+    renderer's screen filter."""
     config = ReconstructConfig(iterations=iterations)
-    settings = hashlib.sha256(json.dumps(dataclasses.asdict(config), sort_keys=True).encode())
+    key = dict(dataclasses.asdict(config), cov2d_dilation=projection.COV2D_DILATION)
+    settings = hashlib.sha256(json.dumps(key, sort_keys=True).encode())
     path = os.path.join(cache_root(), f"avatar-{scene_fingerprint(scene)}-"
                                      f"{settings.hexdigest()[:12]}.ply")
     if os.path.isfile(path):

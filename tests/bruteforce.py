@@ -2,7 +2,7 @@
 
 Per pixel it composites *all* Gaussians in (depth, index) order with the 3DGS cut-offs; no tiles,
 no capacities. Projection is re-derived here from the formulas (EWA with the perspective Jacobian,
-frustum-clamped as in gsplat, 0.3 px dilation), not imported.
+frustum-clamped as in gsplat, a 0.1 px^2 dilation unless told), not imported.
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 ALPHA_MIN = 1.0 / 255.0
+DILATION = 0.1
 T_MIN = 1e-4
 
 
@@ -23,7 +24,7 @@ def rotation_from_quaternion(q):
     ])
 
 
-def project(means, quats, scales, intrinsics, w2c, width, height, near=0.01):
+def project(means, quats, scales, intrinsics, w2c, width, height, near=0.01, dilation=DILATION):
     """Returns means2d (N,2), conics (N,3) [a,b,c] of the inverse 2D covariance, depth (N,), ok (N,)."""
     fx, fy, cx, cy = intrinsics
     n = len(means)
@@ -47,7 +48,7 @@ def project(means, quats, scales, intrinsics, w2c, width, height, near=0.01):
         ty = p[2] * min(max(p[1] / p[2], -lim_yn), lim_yp)
         jac = np.array([[fx / p[2], 0, -fx * tx / p[2] ** 2],
                         [0, fy / p[2], -fy * ty / p[2] ** 2]])
-        cov = jac @ rot @ sigma @ rot.T @ jac.T + 0.3 * np.eye(2)
+        cov = jac @ rot @ sigma @ rot.T @ jac.T + dilation * np.eye(2)
         det = np.linalg.det(cov)
         if det <= 0:
             continue

@@ -131,7 +131,7 @@ def test_a_finished_run_is_extended_by_more_iterations(small, tmp_path):
     assert len(history) == 5
     assert not os.path.exists(os.path.join(folder, edit.CHECKPOINT)), "finished: removed"
     edit.edit_avatar(session_of(small, iterations=3), str(tmp_path / "c"), keep_checkpoint=True)
-    with pytest.raises(ValueError, match=r"different EditConfig: lr \(there 0.05, here 0.02\)"):
+    with pytest.raises(ValueError, match=r"different EditConfig: lr \(there 0.1, here 0.02\)"):
         edit.edit_avatar(session_of(small, iterations=4, lr=0.02), str(tmp_path / "c"),
                          resume=True)
 

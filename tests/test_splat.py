@@ -88,6 +88,33 @@ def test_opaque_stack_stops_before_transmittance_underflow(x64):
     assert int(np.max(out.stats.pixels > 0).sum()) > 0
 
 
+@pytest.mark.parametrize("dilation", [0.1, 0.3], ids=["ours", "gsplat"])
+def test_projection_matches_bruteforce_at_our_filter_and_gsplats(x64, dilation):
+    g, camera = random_scene(11, n=60, width=40, height=24, dtype=np.float64)
+    gg = {k: np.asarray(getattr(g, k), np.float64) for k in ("means", "quats", "scales")}
+    m2, con, dep, ok = bruteforce.project(
+        gg["means"], gg["quats"], gg["scales"], np.asarray(camera.intrinsics, np.float64),
+        np.asarray(camera.w2c, np.float64), camera.width, camera.height, dilation=dilation)
+    p = project(g.means, g.quats, g.scales, g.opacities, camera, dilation=dilation)
+    sel = ok & np.asarray(p.visible)
+    assert sel.sum() > 20
+    np.testing.assert_allclose(np.asarray(p.means2d)[sel], m2[sel], rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(np.asarray(p.conics)[sel], con[sel], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(p.depths), dep, rtol=1e-12, atol=1e-12)
+
+
+def test_projection_default_filter_is_the_module_constant_read_at_trace_time(x64, monkeypatch):
+    from gae_jax.render import projection
+    g, camera = random_scene(12, n=10, dtype=np.float64)
+    monkeypatch.setattr(projection, "COV2D_DILATION", 0.3)
+    wide = projection.project(g.means, g.quats, g.scales, g.opacities, camera)
+    explicit = projection.project(g.means, g.quats, g.scales, g.opacities, camera, dilation=0.3)
+    np.testing.assert_array_equal(np.asarray(wide.conics), np.asarray(explicit.conics))
+    monkeypatch.setattr(projection, "COV2D_DILATION", 0.1)
+    sharp = projection.project(g.means, g.quats, g.scales, g.opacities, camera)
+    assert np.all(np.asarray(sharp.conics)[:, 0] > np.asarray(wide.conics)[:, 0])
+
+
 def _bbox_keep_mask(g, camera, capacity):
     """Independent emulation of per-tile capacity: nearest `capacity` touching each tile."""
     gg = {k: np.asarray(getattr(g, k), np.float64) for k in ("means", "quats", "scales")}

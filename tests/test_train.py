@@ -107,7 +107,7 @@ def test_resume_after_interruption_equals_the_uninterrupted_run(base, tmp_path):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert len(history) == len(full_history) == 6
     other = session_for(base, iterations=7, checkpoint_every=3, editor_noise=0.5, lr=2e-2)
-    with pytest.raises(ValueError, match=r"different EditConfig: lr \(there 0.05, here 0.02\);"):
+    with pytest.raises(ValueError, match=r"different EditConfig: lr \(there 0.1, here 0.02\);"):
         edit.edit_avatar(other, str(tmp_path / "b"), resume=True)
 
 

@@ -48,7 +48,7 @@ class EditConfig:
     d_weight: float = 0.01
     g_weight: float = 0.01
     const_weight: float = 10.0
-    lr: float = 5e-2
+    lr: float = 1e-1
     lr_geometry: float = 1e-3
     lr_means: float = 1e-4
     lr_final: float = 0.1
