@@ -5,7 +5,8 @@ Runs `edit.edit_avatar` + `score.evaluate_avatars` for many `EditConfig`s in one
     each distinct step compiles once;
   * the evaluation sets (ray-cast ideal frames) are cached per (scene, prompt);
   * results go to a JSON file after every variant (atomic write) and a rerun skips variants already
-    there, so an interrupted study resumes where it stopped.
+    there with the same EditConfig and renderer filter, so an interrupted study resumes where it
+    stopped and a changed default is re-run, not read back.
 """
 
 from __future__ import annotations
@@ -58,8 +59,10 @@ class Bench:
         """Edits with `config` (unless `name` is already recorded) and records the result;
         `on_edited(avatar)` sees the edited avatar; `editor` replaces the config's 2D editor
         (the oracle)."""
-        if name in self.results:
-            return self.results[name]
+        recorded = self.results.get(name)
+        if recorded is not None and recorded.get("config") == _jsonable(
+                dataclasses.asdict(config)) and recorded.get("renderer") == _renderer():
+            return recorded
         session, fresh = self.session(config, scene, original)
         start = time.perf_counter()
         edited, history = edit.edit_avatar(session, editor=editor)
@@ -70,7 +73,7 @@ class Bench:
             edited.colors, edited.means, edited.log_scales, edited.opacity_logits)))
         record = dict(config=dataclasses.asdict(config), edit_seconds=round(seconds, 1),
                       compiled_in_this_run=fresh, finite=finite, gaussians=int(edited.num),
-                      tile_capacity=session.rig.tile_capacity,
+                      tile_capacity=session.rig.tile_capacity, renderer=_renderer(),
                       final_losses=history[-1] if history else {}, **(extra or {}))
         if evaluate and finite:
             t = time.perf_counter()
@@ -87,6 +90,13 @@ class Bench:
     def save(self, **meta):
         blob = dict(meta, variants=self.results)
         atomic_write_bytes(self.path, json.dumps(blob, indent=1).encode())
+
+
+def _renderer() -> dict:
+    """What a record depends on beyond its EditConfig."""
+    from gae_jax.render import projection
+
+    return dict(cov2d_dilation=projection.COV2D_DILATION)
 
 
 def default_scene_and_avatar():
