@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from gae_jax import loop
 from gae_jax.edit import edit
 from gae_jax.edit.config import EditConfig, StepConfig
 from gae_jax.evaluation import protocols, score, truth
@@ -55,13 +56,14 @@ class Bench:
         return self.evalsets[key]
 
     def run(self, name: str, config: EditConfig, scene, original, extra: dict | None = None,
-            evaluate: bool = True, on_edited=None, editor=None) -> dict:
+            evaluate: bool = True, on_edited=None, editor=None, eval_scene=None) -> dict:
         """Edits with `config` (unless `name` is already recorded) and records the result;
         `on_edited(avatar)` sees the edited avatar; `editor` replaces the config's 2D editor
-        (the oracle)."""
+        (the oracle); `eval_scene` is scored instead of `scene` (a scenario that edits on part
+        of a scene's training split and is scored on all of it)."""
         recorded = self.results.get(name)
-        if recorded is not None and recorded.get("config") == _jsonable(
-                dataclasses.asdict(config)) and recorded.get("renderer") == _renderer():
+        if recorded is not None and loop.with_defaults(recorded.get("config", {}), EditConfig) \
+                == _jsonable(dataclasses.asdict(config)) and recorded.get("renderer") == _renderer():
             return recorded
         session, fresh = self.session(config, scene, original)
         start = time.perf_counter()
@@ -78,7 +80,7 @@ class Bench:
         if evaluate and finite:
             t = time.perf_counter()
             record["evaluation"] = score.evaluate_avatars(
-                self.evalset(scene, config.prompt), edited, original, session.rig.tile_capacity,
+                self.evalset(eval_scene or scene, config.prompt), edited, original, session.rig.tile_capacity,
                 session.step_config.blend, self.clip_folder)
             record["evaluation_seconds"] = round(time.perf_counter() - t, 1)
         self.results[name] = _jsonable(record)

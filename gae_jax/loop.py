@@ -101,10 +101,20 @@ class _ConfigDiffers(ValueError):
     """A readable checkpoint written with another config (never a reason to fall back)."""
 
 
+def with_defaults(saved: dict, config_type) -> dict:
+    """`saved` (a config's asdict, from JSON) with the fields it lacks at `config_type`'s
+    defaults (JSON-normalised)."""
+    missing = {f.name: f.default for f in dataclasses.fields(config_type)
+               if f.name not in saved and f.default is not dataclasses.MISSING}
+    return dict(json.loads(json.dumps(missing)), **saved)
+
+
 def check_config(saved: dict, config, path: str, free=(), growable=()) -> None:
     """ValueError naming the fields in which `saved` (a config's asdict) differs from `config`,
-    other than `free` ones and `growable` ones that grew."""
+    other than `free` ones and `growable` ones that grew. A field `saved` lacks (written before
+    the field existed) reads as the field's default, which is what such a run did."""
     current = json.loads(json.dumps(dataclasses.asdict(config)))
+    saved = with_defaults(saved, type(config))
     differ = sorted(k for k in set(saved) | set(current) if saved.get(k) != current.get(k)
                     and k not in free and not (k in growable and k in saved and k in current
                                                and current[k] > saved[k]))

@@ -56,6 +56,38 @@ def test_keeps_original_returns_the_original_outside_the_region():
         make_editor("semantic", keeps="both")
 
 
+def test_bleed_spills_over_the_outline_and_into_what_the_region_hides():
+    image, regions, _ = toy_render()
+    teeth = head.REGION_ID["teeth"]
+    regions[8, 6:10] = teeth  # just under the lips
+    regions[11, 0] = teeth  # far from them
+    key, ctx = jax.random.PRNGKey(0), dict(regions=regions)
+    plain = make_editor("semantic", keeps="original").edit(image, image, "turn the lips blue",
+                                                           key, ctx)
+    bleed = 2
+    out = make_editor("semantic", keeps="original", bleed=bleed).edit(
+        image, image, "turn the lips blue", key, ctx)
+    lips = regions == LIPS
+    np.testing.assert_array_equal(out[lips], plain[lips])
+    # Brute force: Euclidean distance of every pixel to the nearest lips pixel.
+    ly, lx = np.nonzero(lips)
+    blue = np.asarray(instructions.COLOURS["blue"], np.float32)
+    for y in range(12):
+        for x in range(16):
+            if lips[y, x]:
+                continue
+            d = np.sqrt(np.min((ly - y) ** 2 + (lx - x) ** 2))
+            w = 1.0 if regions[y, x] == teeth and d <= 3 * bleed else max(0.0, 1 - d / (bleed + 1))
+            own = (max(float(np.asarray(head.ALBEDO[head.REGIONS[regions[y, x]]]) @ semantic.LUMA),
+                        1e-3) if regions[y, x] >= 0 else 1.0)
+            spill = blue * min(max(float(image[y, x] @ semantic.LUMA) / own, 0.0), 1.5)
+            np.testing.assert_allclose(out[y, x], (1 - w) * image[y, x] + w * spill, atol=1e-5)
+    assert np.all(out[8, 6:10] != image[8, 6:10]), "the teeth under the lips are recoloured"
+    np.testing.assert_array_equal(out[11, 0], image[11, 0])
+    with pytest.raises(ValueError, match="bleed must be"):
+        make_editor("semantic", bleed=-1)
+
+
 def test_noise_is_driven_by_the_key_and_zero_noise_ignores_it():
     image, regions, _ = toy_render()
     ctx = dict(regions=regions)

@@ -3,6 +3,7 @@ are not overwritten by accident, corrupt caches are rebuilt, an unreadable check
 to the previous one, a finished run can be extended, and a corruption sweep over every file the
 project reads ends in success with finite values or the project's own error naming the file."""
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -243,3 +244,12 @@ def test_the_video_is_labelled_smooth_and_warns_of_nothing(small, tmp_path):
     # two sequences of 2 frames, 3 steps between frames: 4 frames each; header + two panels
     assert len(frames) == 2 * ((2 - 1) * 3 + 1)
     assert frames[0].shape == (14 + scene.height, 2 * scene.width, 3)
+
+
+def test_a_checkpoint_written_before_a_field_existed_reads_it_as_its_default():
+    config = edit_config.EditConfig()
+    saved = json.loads(json.dumps(dataclasses.asdict(config)))
+    del saved["editor_bleed"]
+    loop.check_config(saved, config, "ckpt")  # the old run behaved as bleed 0
+    with pytest.raises(ValueError, match=r"editor_bleed \(there 0, here 2\)"):
+        loop.check_config(saved, edit_config.EditConfig(editor_bleed=2), "ckpt")

@@ -30,6 +30,7 @@ class EditConfig:
     editor: str = "semantic"
     editor_noise: float = 0.3
     editor_keeps: str = "original"
+    editor_bleed: int = 0
     ip2p_folder: str = ""
     clip_folder: str = ""
     iterations: int = 100
@@ -70,6 +71,8 @@ class EditConfig:
             raise ValueError(f"checkpoint_every must be >= 0, got {self.checkpoint_every}")
         if not 0 <= self.editor_noise <= 1:
             raise ValueError(f"editor_noise must be in [0, 1], got {self.editor_noise}")
+        if not 0 <= self.editor_bleed <= 16:
+            raise ValueError(f"editor_bleed must be in [0, 16] px, got {self.editor_bleed}")
         if not 0 < self.lr_final <= 1:
             raise ValueError(f"lr_final must be in (0, 1], got {self.lr_final}")
         if self.lr_decay_steps < 1:
@@ -91,6 +94,8 @@ HELP = {
     "editor_noise": "semantic editor's inconsistency across calls, 0..1",
     "editor_keeps": "what the semantic editor returns outside the edited region: render (the "
                     "image it edits) or original (the unedited image it is conditioned on)",
+    "editor_bleed": "px the semantic editor's edit spills across the region's outline (3x "
+                    "into what the region occludes: teeth behind lips), as diffusion edits do",
     "ip2p_folder": "local diffusers InstructPix2Pix folder (editor ip2p)",
     "clip_folder": "local CLIP folder for CLIP-S / CLIP-C in metrics.json (skipped if empty)",
     "iterations": "edit iterations",

@@ -21,6 +21,13 @@ is never corrected; see the README's ablation and stability findings.
 colour jitter, a mask grown or shrunk by up to 2 px, a shift by up to 2 px, an occasional partial
 edit (a random half of the region, probability 0.25 noise), and a global tone change.
 
+`bleed` (pixels, default 0) imitates how a diffusion edit spills over a region's silhouette: the
+edit's colour fades out over `bleed` px across the region's outline onto whatever borders it,
+and recolours fully what lies behind the region (`BEHIND`: the mouth, teeth and tongue behind
+the lips; the eyes behind the eyelids' skin) within 3 x `bleed` px of it, wherever the render
+shows them. This is the leak WABE is meant to stop: the ideal edit never recolours those pixels.
+Spilled pixels keep their own shading (luminance over their own region's albedo).
+
 `instructions.ideal_albedo` applies the same instruction without noise to the mesh's vertex
 albedo: its ray-cast render (`evaluation.truth`) is the ground truth of the edit.
 """
@@ -39,6 +46,9 @@ from gae_jax.model import head
 LUMA = np.array([0.299, 0.587, 0.114], np.float32)
 
 KEEPS = ("render", "original")
+# What an edit of a region bleeds into when visible (`bleed`): the regions it occludes.
+BEHIND = {"lips": ("mouth", "teeth", "tongue"), "skin": ("sclera", "iris", "pupil"),
+          "iris": ("pupil",), "sclera": ("iris", "pupil")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,10 +58,14 @@ class SemanticEditor:
     noise: float = 0.0
     albedo: dict = dataclasses.field(default_factory=lambda: dict(head.ALBEDO))
     keeps: str = "render"  # outside the edit: "render" (the image edited) or "original"
+    bleed: int = 0  # px the edit spills across the region's outline (3x into what it occludes)
 
     def __post_init__(self):
         if not 0.0 <= self.noise <= 1.0:
             raise ValueError(f"noise must be in [0, 1], got {self.noise}")
+        if not (isinstance(self.bleed, (int, np.integer)) and 0 <= self.bleed <= 16):
+            raise ValueError(f"bleed must be an integer number of pixels in [0, 16], got "
+                             f"{self.bleed!r}")
         if self.keeps not in KEEPS:
             raise ValueError(f"keeps must be one of {KEEPS}, got {self.keeps!r}")
 
@@ -84,9 +98,32 @@ class SemanticEditor:
         shade = (source @ LUMA) / max(float(base @ LUMA), 1e-3)
         outside = image if self.keeps == "render" else source
         edited = np.where(mask[..., None], np.clip(colour, 0, 1) * shade[..., None], outside)
+        if self.bleed:
+            edited = self._bleed(edited, source, regions, mask, instruction.region,
+                                 np.clip(colour, 0, 1))
         if self.noise > 0:
             edited = edited * (1 + 0.04 * self.noise * float(jax.random.normal(keys[6])))
         return np.clip(edited, 0, 1).astype(np.float32)
+
+
+    def _bleed(self, edited, source, regions, mask, region, colour):
+        """`edited` with the region's colour spilled around `mask` (see the module docstring)."""
+        import cv2
+
+        if not mask.any():
+            return edited
+        distance = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2,
+                                         cv2.DIST_MASK_PRECISE)
+        weight = np.clip(1.0 - distance / (self.bleed + 1.0), 0.0, 1.0)
+        behind = np.isin(regions, [head.REGION_ID[n] for n in BEHIND.get(region, ())])
+        weight = np.where(behind & (distance <= 3 * self.bleed), 1.0, weight)
+        weight = np.where(mask, 0.0, weight)[..., None]
+        own = np.ones(regions.shape, np.float32)
+        for name, rgb in self.albedo.items():
+            if name in head.REGION_ID:
+                own[regions == head.REGION_ID[name]] = max(float(np.asarray(rgb) @ LUMA), 1e-3)
+        spill = colour * np.clip((source @ LUMA) / own, 0.0, 1.5)[..., None]
+        return (1.0 - weight) * edited + weight * spill
 
 
 def _jitter_mask(mask: np.ndarray, noise: float, keys) -> np.ndarray:
