@@ -62,8 +62,7 @@ class Bench:
         (the oracle); `eval_scene` is scored instead of `scene` (a scenario that edits on part
         of a scene's training split and is scored on all of it)."""
         recorded = self.results.get(name)
-        if recorded is not None and loop.with_defaults(recorded.get("config", {}), EditConfig) \
-                == _jsonable(dataclasses.asdict(config)) and recorded.get("renderer") == _renderer():
+        if recorded is not None and _same_settings(recorded, config):
             return recorded
         session, fresh = self.session(config, scene, original)
         start = time.perf_counter()
@@ -80,8 +79,8 @@ class Bench:
         if evaluate and finite:
             t = time.perf_counter()
             record["evaluation"] = score.evaluate_avatars(
-                self.evalset(eval_scene or scene, config.prompt), edited, original, session.rig.tile_capacity,
-                session.step_config.blend, self.clip_folder)
+                self.evalset(eval_scene or scene, config.prompt), edited, original,
+                session.rig.tile_capacity, session.step_config.blend, self.clip_folder)
             record["evaluation_seconds"] = round(time.perf_counter() - t, 1)
         self.results[name] = _jsonable(record)
         self.save()
@@ -99,6 +98,13 @@ def _renderer() -> dict:
     from gae_jax.render import projection
 
     return dict(cov2d_dilation=projection.COV2D_DILATION)
+
+
+def _same_settings(record: dict, config: EditConfig) -> bool:
+    """Whether `record` was made with `config` (fields it predates at their defaults) and this
+    renderer."""
+    saved = loop.with_defaults(record.get("config", {}), EditConfig)
+    return saved == _jsonable(dataclasses.asdict(config)) and record.get("renderer") == _renderer()
 
 
 def default_scene_and_avatar():

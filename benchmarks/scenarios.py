@@ -4,9 +4,9 @@ training, while the held-out sequences open the jaw and close the eyes.
 
 `closed_split(scene)` keeps, of every training sequence, the frames whose training views show
 at most a few pixels of teeth or tongue and at least `eyes_open` of the most iris pixels
-any training frame shows; each run of consecutive kept frames becomes its own sequence
-named by its first frame (`talk~0`, `talk~6`, ...) so that temporal neighbours stay neighbours. Cameras, held-out
-sequences and identities are untouched. The selection reads the scene's rendered labels of its
+any training frame shows; each run of consecutive kept frames becomes its own sequence named
+by its first frame (`talk~0`, `talk~6`, ...) so that temporal neighbours stay neighbours.
+Cameras, held-out sequences and identities are untouched. The selection reads the scene's rendered labels of its
 training images (what a capture's face parser would give), never the edit's ideal.
 """
 
@@ -39,7 +39,7 @@ def closed_frames(scene, eyes_open: float = 0.8, mouth_pixels: int = 5) -> dict:
     """{training sequence: (T,) bool}, True where every training view shows at most
     `mouth_pixels` teeth or tongue pixels and the views' iris pixels reach `eyes_open` of the
     most any training frame shows."""
-    interior = [head.REGION_ID[n] for n in MOUTH_INTERIOR if n in head.REGION_ID]
+    interior = [head.REGION_ID[n] for n in MOUTH_INTERIOR]
     iris = [head.REGION_ID["iris"], head.REGION_ID["pupil"]]
     cams = list(scene.train_cameras)
     counts = {}
@@ -54,20 +54,18 @@ def closed_frames(scene, eyes_open: float = 0.8, mouth_pixels: int = 5) -> dict:
 def closed_split(scene, eyes_open: float = 0.8, mouth_pixels: int = 5, min_run: int = 2):
     """`scene` with its training sequences cut to their closed-mouth, open-eye runs of at least
     `min_run` frames (see the module docstring). ValueError when no frame qualifies."""
-    sequences, images, regions = {}, {}, {}
-    for name, seq in scene.sequences.items():
-        if seq.split != "train":
-            sequences[name], images[name], regions[name] = seq, scene.images[name], \
-                scene.regions[name]
+    others = [n for n, seq in scene.sequences.items() if seq.split != "train"]
+    sequences = {n: scene.sequences[n] for n in others}
+    images = {n: scene.images[n] for n in others}
+    regions = {n: scene.regions[n] for n in others}
     kept = closed_frames(scene, eyes_open, mouth_pixels)
     for name, keep in kept.items():
         seq = scene.sequences[name]
         for a, b in (r for r in _runs(keep) if r[1] - r[0] >= min_run):
             part = f"{name}~{a}"  # the run's first frame in the original sequence
-            sequences[part] = dataclasses.replace(
-                seq, name=part, expr=seq.expr[a:b], rotation=seq.rotation[a:b],
-                neck=seq.neck[a:b], jaw=seq.jaw[a:b], eyes=seq.eyes[a:b],
-                translation=seq.translation[a:b])
+            per_frame = {f.name: getattr(seq, f.name)[a:b] for f in dataclasses.fields(seq)
+                         if isinstance(getattr(seq, f.name), np.ndarray)}
+            sequences[part] = dataclasses.replace(seq, name=part, **per_frame)
             images[part] = scene.images[name][:, a:b]
             regions[part] = scene.regions[name][:, a:b]
     if not any(s.split == "train" for s in sequences.values()):

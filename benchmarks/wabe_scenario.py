@@ -14,7 +14,8 @@ Rows: blend standard / WABE on the gradient (our default) / forward WABE (the pa
 region none (the paper) / prompt (ours), with Adam's eps 1e-8 and, for region none, 1e-15 (the
 eps at which WABE's small weights mean small moves under Adam); and both defaults without
 bleed for reference; region none with standard blending and WABE on the gradient at seeds 1
-and 2 besides 0 (editor noise, sampling and the GAN's keys), for the spread. Reported per row, mean over the three protocols: lips against the ideal,
+and 2 besides 0 (editor noise, sampling and the GAN's keys), for the spread. Reported per row,
+mean over the three protocols: lips against the ideal,
 teeth against the ideal, and teeth change (PSNR against the untouched avatar where the truth
 shows teeth: how much the edit moved them). Writes `<out>.json` (resumable), `<out>.md` and
 `<out>.png` (lips and teeth against the ideal per row, the untouched avatar's teeth dashed).

@@ -105,7 +105,6 @@ class SemanticEditor:
             edited = edited * (1 + 0.04 * self.noise * float(jax.random.normal(keys[6])))
         return np.clip(edited, 0, 1).astype(np.float32)
 
-
     def _bleed(self, edited, source, regions, mask, region, colour):
         """`edited` with the region's colour spilled around `mask` (see the module docstring)."""
         import cv2
