@@ -1,25 +1,27 @@
 """The paper's Table 1 on our scene: methods x protocols, for occlusion and style edits.
 
     python benchmarks/ablation.py [--iterations 100] [--out benchmarks/results/ablation]
-                                  [--clip-folder DIR] [--rows in2n no_wabe ...]
+                                  [--clip-folder DIR] [--rows in2n wabe_grad ...]
 
 Rows (presets of `edit.config.PRESETS`, all at the same iteration count so time is comparable):
   in2n       Instruct-NeRF2NeRF: standard blending, no GAN, iterative dataset update, no region
-  previous   the default before region-aware editing (no region, editor keeps the render, colour
-             rate 1e-2, Adam eps 1e-4)
+  previous   the default before region-aware editing (no region, editor keeps the render, WABE on
+             the gradient, L1 + SSIM, colour rate 1e-2, Adam eps 1e-4)
   no_region  the default without its edit region (every Gaussian may move)
-  no_wabe    ours without WABE (standard blending)
+  wabe_grad  ours with WABE on the gradient (the default until 2026-12-02)
+  ssim       ours with the paper's L1 + SSIM (the default until 2026-12-02) instead of L1
   no_adv     ours without the adversarial loss
   paper      ours as the paper writes it: WABE in the forward pass, one lr 1e-2 for everything
   code       ours as the released code does it: gradient mask (front Gaussians, no mouth), pairs
   oracle     the default fed the ray-cast ideal edit of every sampled view (benchmarks/oracle.py):
              the ceiling of render-edit-aggregate with perfect 2D edits (semantic edits only)
-  fast       ours (the default): the prompt's region, composited targets, WABE on the gradient
+  fast       ours (the default): the prompt's region, composited targets, standard blending, L1
 Instructions: "turn the lips blue" (lips occlude the teeth), "give her red eyes" (eyelids occlude
 the irises), "make it an oil painting" (style, OpenCV); the lips also at editor noise 0.7 (the eyes
 too with --edits ... eyes_noisy). A style edit has no ideal 3D counterpart: its PSNR columns are
-against the unedited truth (how much changed), its flicker is the temporal consistency. Scores against the ideal edit (the ray-cast mesh with the edited albedo): PSNR of the edited
-region and of the preserved regions, LPIPS and temporal flicker, per protocol; CLIP-S / CLIP-C with
+against the unedited truth (how much changed), its flicker is the temporal consistency. Scores
+against the ideal edit (the ray-cast mesh with the edited albedo): PSNR of the edited region and
+of the preserved regions, LPIPS and temporal flicker, per protocol; CLIP-S / CLIP-C with
 --clip-folder. Writes `<out>.json` (every number) and `<out>.md` (tables); resumable.
 """
 
@@ -41,7 +43,8 @@ from gae_jax.scene import synthetic  # noqa: E402
 from gae_jax.scene.types import training_frames  # noqa: E402
 from gae_jax.train import original_avatar  # noqa: E402
 
-ROWS = ("in2n", "previous", "no_region", "no_wabe", "no_adv", "paper", "code", "oracle", "fast")
+ROWS = ("in2n", "previous", "no_region", "wabe_grad", "ssim", "no_adv", "paper", "code", "oracle",
+        "fast")
 ORACLE_ROW = "oracle"
 # IN2N replaces one dataset image per iteration: at 100 iterations it has edited 100 of the 1200
 # training images. These rows give it one full pass over the dataset (lips only: ~8 minutes
@@ -50,7 +53,8 @@ ORACLE_ROW = "oracle"
 PASS_ROW = "in2n_pass"
 SLOW_PASS_ROW = "in2n_pass_slow"
 PASS_ROWS = (PASS_ROW, SLOW_PASS_ROW)
-LABELS = {"in2n": "Instruct-NeRF2NeRF", "no_wabe": "ours w/o WABE",
+LABELS = {"in2n": "Instruct-NeRF2NeRF", "wabe_grad": "ours + WABE on the gradient",
+          "ssim": "ours + SSIM (the paper's loss)",
           "no_adv": "ours w/o adversarial", "paper": "ours (paper: forward WABE)",
           "code": "ours (released code's mask)", "previous": "ours before regions (old default)",
           "no_region": "ours w/o edit region", "oracle": "oracle editor (ideal 2D edits)",

@@ -7,7 +7,7 @@ browser, before and after the edit.
 Serves a page (viser; its client ships in the wheel, nothing is fetched) on http://HOST:PORT.
 Every slider move, camera move or sequence frame costs one FLAME pose + `deform` + render of our
 jitted renderer, streamed to the page as the background image (`--display image`, the
-default): the picture is exactly what the edit trained and was scored on (WABE blending, SH
+default): the picture is exactly what the edit trained and was scored on (its blending, SH
 colours, our tile compositor). `--display splats` sends the posed Gaussians to viser's own
 splat renderer instead (smooth orbiting on a slow machine, but RGB from the SH's constant term
 and standard blending only). Screenshots (the button) are PNGs in RUN_DIR/screenshots/

@@ -257,3 +257,24 @@ def test_learning_rates_decay_to_their_final_fraction_and_stay():
     # Adam's first step with a constant gradient moves by the rate itself.
     expected = [0.08 * max(0.25 ** (t / 10), 0.25) for t in range(25)]
     np.testing.assert_allclose(moves, expected, rtol=1e-4)
+
+
+def test_edit_loss_weighs_one_minus_ssim_beside_l1_as_configured(base):
+    from tests.test_losses import naive_ssim
+
+    s = session_for(base, adversarial=False)
+    render = rigs.render_bound(s.original.trainable(), s.rig, 1, 2,
+                               blend=s.step_config.blend).image
+    image = np.asarray(render, np.float64)
+    target = np.clip(image + np.random.default_rng(0).normal(0, 0.1, image.shape), 0, 1)
+    batch = dict(cams=np.array([2], np.int32), frames=np.array([1], np.int32),
+                 target=target[None].astype(np.float32), neighbour=target[None].astype(np.float32))
+    l1 = np.abs(image - target).mean()
+    one_minus_ssim = 1 - naive_ssim(image, target).mean()
+    editable = np.ones(s.original.num, bool)
+    for weight in (0.0, 0.2, 1.0):
+        config = edit_config.StepConfig.of(dataclasses.replace(s.config, ssim_weight=weight))
+        state = step_module.initial_state(config, s.original.trainable(), (SIZE, SIZE),
+                                          jax.random.PRNGKey(0))
+        _, metrics = step_module.make_edit_step(config)(state, s.rig, batch, editable)
+        assert float(metrics["recon"]) == pytest.approx(l1 + weight * one_minus_ssim, rel=1e-4)

@@ -75,7 +75,7 @@ def test_run_folder_loads_both_avatars_the_scene_motions_and_the_training_blend(
     assert set(v.shapes) == {"A", "B"} and v.sequences["b_mix"].identity == "B"
     assert set(v.sequences) == set(synthetic.make_sequences(4, v.model.num_expr))
     assert v.expr_names == head.EXPR_NAMES
-    assert v.blend == wabe.wabe_grad(EditConfig().beta)
+    assert v.blend == wabe.named(EditConfig().blend, EditConfig().beta)
     assert v.w2c.shape == (9, 4, 4) and v.height == RIG_SIZE
 
 

@@ -1,13 +1,14 @@
 """Settings of one edit (`EditConfig`, every field a flag of `python -m gae_jax.train`), the
 presets, and the small hashable `StepConfig` that the jitted step reads.
 
-Presets: `paper` (the paper's settings: forward WABE, all rates 1e-2, 1000 iterations, no edit
-region), `fast` (the README default: WABE on the gradient, the prompt's region, targets
-composited over the unedited image), the ablations `wabe`, `no_wabe`, `no_adv`, `no_region`
-(every Gaussian may move), `previous` (the default before region-aware editing: no region, the
-editor keeping the render outside its edit, colour rate 1e-2 with Adam eps 1e-4, no decay),
-`code` (the released code's gradient mask and pairs), and the baseline `in2n` (standard
-blending, no GAN, Instruct-NeRF2NeRF's dataset update, no region).
+Presets: `paper` (the paper's settings: forward WABE, L1 + SSIM, all rates 1e-2, 1000
+iterations, no edit region), `fast` (the README default: the prompt's region, targets composited
+over the unedited image, standard blending, L1), the ablations `wabe` (forward WABE), `wabe_grad`
+(WABE on the gradient), `ssim` (the paper's L1 + SSIM), `no_adv`, `no_region` (every Gaussian may
+move), `previous` (the default before region-aware editing: no region, the editor keeping the
+render, WABE on the gradient, L1 + SSIM, colour rate 1e-2 with Adam eps 1e-4, no decay), `code`
+(the released code's gradient mask and pairs), and the baseline `in2n` (no GAN,
+Instruct-NeRF2NeRF's dataset update, no region).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ class EditConfig:
     clip_folder: str = ""
     iterations: int = 100
     batch: int = 1
-    blend: str = "wabe_grad"
+    blend: str = "standard"
     beta: float = wabe.PAPER_BETA
     adversarial: bool = True
     pair_mode: str = "paper"
@@ -46,6 +47,7 @@ class EditConfig:
     region_dilate: int = 2
     region_blur: float = 1.0
     recon_weight: float = 10.0
+    ssim_weight: float = 0.0
     d_weight: float = 0.01
     g_weight: float = 0.01
     const_weight: float = 10.0
@@ -77,6 +79,8 @@ class EditConfig:
             raise ValueError(f"lr_final must be in (0, 1], got {self.lr_final}")
         if self.lr_decay_steps < 1:
             raise ValueError(f"lr_decay_steps must be >= 1, got {self.lr_decay_steps}")
+        if self.ssim_weight < 0:
+            raise ValueError(f"ssim_weight must be >= 0, got {self.ssim_weight}")
         if self.beta < 0:
             raise ValueError(f"beta must be >= 0, got {self.beta}")
         region.parse_region(self.region)
@@ -113,7 +117,9 @@ HELP = {
                         "unedited image by more than this (3x3-blurred, any channel)",
     "region_dilate": "pixels the region's 2D mask grows before compositing the target",
     "region_blur": "sigma in pixels of the composited mask's soft edge",
-    "recon_weight": "lambda_1 (L1 + 1 - SSIM)",
+    "recon_weight": "lambda_1 (L1 + ssim_weight (1 - SSIM))",
+    "ssim_weight": "weight of 1 - SSIM beside L1 in the edit's reconstruction term (the paper: "
+                   "1; SSIM follows an inconsistent editor's outliers, L1 their median)",
     "d_weight": "lambda_2 (discriminator loss)",
     "g_weight": "lambda_3 (generator loss)",
     "const_weight": "lambda_4 (position / scale regulariser)",
@@ -135,19 +141,20 @@ HELP = {
 
 PRESETS = {
     "paper": dict(iterations=1000, blend="wabe", adversarial=True, pair_mode="paper",
-                  recon_weight=10.0, d_weight=0.01, g_weight=0.01, const_weight=10.0, lr=1e-2,
-                  lr_geometry=1e-2, lr_means=1e-2, lr_final=1.0, adam_eps=1e-15, region="none",
-                  editor_keeps="render"),
+                  recon_weight=10.0, ssim_weight=1.0, d_weight=0.01, g_weight=0.01,
+                  const_weight=10.0, lr=1e-2, lr_geometry=1e-2, lr_means=1e-2, lr_final=1.0,
+                  adam_eps=1e-15, region="none", editor_keeps="render"),
     "fast": dict(),
     "no_region": dict(region="none"),
-    "previous": dict(region="none", editor_keeps="render", lr=1e-2, lr_final=1.0,
-                     adam_eps=1e-4),
+    "previous": dict(region="none", editor_keeps="render", blend="wabe_grad", ssim_weight=1.0,
+                     lr=1e-2, lr_final=1.0, adam_eps=1e-4),
     "wabe": dict(blend="wabe"),
-    "no_wabe": dict(blend="standard"),
+    "wabe_grad": dict(blend="wabe_grad"),
+    "ssim": dict(ssim_weight=1.0),
     "no_adv": dict(adversarial=False),
-    "code": dict(blend="standard", pair_mode="code", gradient_mask="code", region="none",
-                 editor_keeps="render"),
-    "in2n": dict(blend="standard", adversarial=False, dataset_update=True, region="none"),
+    "code": dict(pair_mode="code", gradient_mask="code", region="none", editor_keeps="render",
+                 ssim_weight=1.0),
+    "in2n": dict(adversarial=False, dataset_update=True, region="none"),
 }
 
 
@@ -166,6 +173,7 @@ class StepConfig:
     pair_mode: str
     gradient_mask: str
     recon_weight: float
+    ssim_weight: float
     d_weight: float
     g_weight: float
     const_weight: float

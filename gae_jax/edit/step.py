@@ -2,7 +2,8 @@
 
 One step: render the batch of (camera, frame) samples through the rig (traced once: its VJP
 serves the avatar update after the discriminator has moved), update the discriminator on
-(real, fake) pairs, then the avatar on lambda_1 (L1 + 1 - SSIM) + lambda_3 L_G + lambda_4 L_const.
+(real, fake) pairs, then the avatar on lambda_1 (L1 + w (1 - SSIM)) + lambda_3 L_G
++ lambda_4 L_const.
 The batch axis is `vmap`ped; shard it over devices (`sampler.put_batch`) to run data-parallel.
 """
 
@@ -109,8 +110,9 @@ def make_edit_step(config: StepConfig):
             d_params = optax.apply_updates(d_params, d_updates)
 
         def image_objective(imgs):
-            recon = jnp.mean(jax.vmap(lambda c, e: losses.l1(c, e) + 1 - losses.ssim(c, e))(
-                imgs, target))
+            recon = jnp.mean(jax.vmap(
+                lambda c, e: losses.l1(c, e) + config.ssim_weight * (1 - losses.ssim(c, e)))(
+                    imgs, target))
             adv = jnp.float32(0.0)
             if config.adversarial:
                 _, fake = gan.make_pairs(config.pair_mode, target, neighbour, imgs)
