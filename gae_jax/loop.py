@@ -102,9 +102,11 @@ class _ConfigDiffers(ValueError):
 
 
 def with_defaults(saved: dict, config_type) -> dict:
-    """`saved` (a config's asdict, from JSON) with the fields it lacks at `config_type`'s
-    defaults (JSON-normalised)."""
-    missing = {f.name: f.default for f in dataclasses.fields(config_type)
+    """`saved` (a config's asdict, from JSON) with the fields it lacks at what a config written
+    before the field existed did: `config_type.ABSENT_MEANS[name]` where the field came with a
+    default other than the old behaviour, else the field's default (JSON-normalised)."""
+    absent = getattr(config_type, "ABSENT_MEANS", {})
+    missing = {f.name: absent.get(f.name, f.default) for f in dataclasses.fields(config_type)
                if f.name not in saved and f.default is not dataclasses.MISSING}
     return dict(json.loads(json.dumps(missing)), **saved)
 
@@ -112,7 +114,7 @@ def with_defaults(saved: dict, config_type) -> dict:
 def check_config(saved: dict, config, path: str, free=(), growable=()) -> None:
     """ValueError naming the fields in which `saved` (a config's asdict) differs from `config`,
     other than `free` ones and `growable` ones that grew. A field `saved` lacks (written before
-    the field existed) reads as the field's default, which is what such a run did."""
+    the field existed) reads as what such a run did (`with_defaults`)."""
     current = json.loads(json.dumps(dataclasses.asdict(config)))
     saved = with_defaults(saved, type(config))
     differ = sorted(k for k in set(saved) | set(current) if saved.get(k) != current.get(k)

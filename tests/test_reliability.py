@@ -246,10 +246,15 @@ def test_the_video_is_labelled_smooth_and_warns_of_nothing(small, tmp_path):
     assert frames[0].shape == (14 + scene.height, 2 * scene.width, 3)
 
 
-def test_a_checkpoint_written_before_a_field_existed_reads_it_as_its_default():
+def test_a_checkpoint_written_before_a_field_existed_reads_it_as_that_run_behaved():
     config = edit_config.EditConfig()
     saved = json.loads(json.dumps(dataclasses.asdict(config)))
     del saved["editor_bleed"]
     loop.check_config(saved, config, "ckpt")  # the old run behaved as bleed 0
     with pytest.raises(ValueError, match=r"editor_bleed \(there 0, here 2\)"):
         loop.check_config(saved, edit_config.EditConfig(editor_bleed=2), "ckpt")
+    # a field that came with a new default reads as what old runs did: SSIM in the loss
+    del saved["ssim_weight"]
+    loop.check_config(saved, edit_config.EditConfig(ssim_weight=1.0), "ckpt")
+    with pytest.raises(ValueError, match=r"ssim_weight \(there 1.0, here 0.0\)"):
+        loop.check_config(saved, config, "ckpt")
