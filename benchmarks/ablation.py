@@ -33,7 +33,7 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from editbench import Bench, fmt, mean_over_protocols  # noqa: E402
+from editbench import Bench, fmt, mean_over_protocols, write_report  # noqa: E402
 from editbench import score_of as score  # noqa: E402
 from oracle import OracleEditor  # noqa: E402
 
@@ -181,9 +181,7 @@ def main(argv=None) -> int:
         if edit in args.edits:
             sections.append(f"## {prompt!r} (editor noise {noise})\n\n"
                             + table(bench.results, edit) + "\n")
-    with open(args.out + ".md", "w") as f:
-        f.write("\n".join(sections))
-    print("\n".join(sections))
+    write_report(args.out + ".md", "\n".join(sections))
     return 0
 
 

@@ -10,7 +10,7 @@ never shown unedited in training; the built-in editor bleeds (`--bleed` px acros
 outline, 3x into the mouth, teeth and tongue wherever they show, as diffusion edits spill);
 scored on the full scene, whose held-out sequence and cross-identity motion open the jaw.
 
-Rows: blend standard / WABE on the gradient (our default) / forward WABE (the paper's) x edit
+Rows: blend standard (our default) / WABE on the gradient / forward WABE (the paper's) x edit
 region none (the paper) / prompt (ours), with Adam's eps 1e-8 and, for region none, 1e-15 (the
 eps at which WABE's small weights mean small moves under Adam); and both defaults without
 bleed for reference; region none with standard blending and WABE on the gradient at seeds 1
