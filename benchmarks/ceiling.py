@@ -32,7 +32,7 @@ from editbench import write_report  # noqa: E402
 from oracle import OracleEditor  # noqa: E402
 
 from gae_jax.edit.config import preset  # noqa: E402
-from gae_jax.evaluation import protocols, score, truth  # noqa: E402
+from gae_jax.evaluation import metrics, protocols, score, truth  # noqa: E402
 from gae_jax.model import avatar as av  # noqa: E402
 from gae_jax.model import head  # noqa: E402
 from gae_jax.scene import rig as rigs  # noqa: E402
@@ -76,8 +76,7 @@ def rim_and_interior(scene, edited, original, blend, tile_capacity) -> dict:
     for name, mask in parts:
         for who, image, reference in (("ours_vs_ideal", ours, frames.truth),
                                       ("untouched_vs_unedited", before, plain.truth)):
-            se = ((image - reference / 255.0) ** 2).mean(-1)[mask]
-            out[f"{name}_{who}"] = round(float(10 * np.log10(1 / se.mean())), 2)
+            out[f"{name}_{who}"] = round(metrics.pooled_psnr(image, reference / 255.0, mask), 2)
         out[f"{name}_pixels"] = int(mask.sum())
         out[f"{name}_error_share"] = round(float(ours_se[mask].sum() / ours_se[lips].sum()), 3)
     return out

@@ -57,15 +57,15 @@ def region_psnr(predicted, truth, regions) -> dict:
     the pixels whose (..., H, W) label belongs to each `REGION_GROUPS` entry."""
     import numpy as np
 
+    from gae_jax.evaluation.metrics import pooled_psnr
     from gae_jax.model import head
 
-    err = np.mean((np.asarray(predicted, np.float64) - np.asarray(truth, np.float64)) ** 2, -1)
     out = {}
     for group, names in REGION_GROUPS.items():
         mask = (np.ones(regions.shape, bool) if names is None else
                 np.isin(regions, [head.REGION_ID[n] for n in names if n in head.REGION_ID]))
-        out[group] = (None if not mask.any() else
-                      round(float(10 * np.log10(1.0 / max(err[mask].mean(), 1e-12))), 2))
+        value = pooled_psnr(predicted, truth, mask)
+        out[group] = None if value is None else round(value, 2)
     return out
 
 

@@ -29,6 +29,8 @@ def test_region_scores_equal_numpy_references():
     lp = np.asarray(lpips.lpips_map(ours, truth))
     assert scores["lpips"]["edited"] == pytest.approx(lp[lips].mean(), abs=1e-4)
     assert scores["psnr"]["eyes"] is None  # no eye pixels
+    assert metrics.pooled_psnr(ours, truth) == pytest.approx(
+        10 * np.log10(1 / np.mean((ours - truth) ** 2)), abs=1e-9)
     same = metrics.region_scores(truth, truth, regions, "lips")
     assert same["ssim"]["whole"] == pytest.approx(1.0, abs=1e-5)
     assert same["lpips"]["whole"] == pytest.approx(0.0, abs=1e-5)

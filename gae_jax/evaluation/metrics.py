@@ -40,6 +40,19 @@ def region_masks(regions: np.ndarray, edited_region: str | None) -> dict:
     return masks
 
 
+def pooled_psnr(predicted: np.ndarray, reference: np.ndarray,
+                mask: np.ndarray | None = None) -> float | None:
+    """PSNR dB of (..., H, W, 3) images in [0, 1] with the squared errors pooled over the
+    (..., H, W) mask's pixels of all images (all pixels without a mask); None for an empty
+    mask."""
+    se = np.mean((np.asarray(predicted, np.float64) - np.asarray(reference, np.float64)) ** 2, -1)
+    if mask is not None:
+        if not mask.any():
+            return None
+        se = se[mask]
+    return float(10 * np.log10(1.0 / max(float(se.mean()), 1e-12)))
+
+
 def region_scores(predicted: np.ndarray, truth: np.ndarray, regions: np.ndarray,
                   edited_region: str | None, perceptual: bool = True) -> dict:
     """{metric: {mask: value}} over (..., H, W, 3) images in [0, 1] or uint8.
@@ -58,8 +71,7 @@ def region_scores(predicted: np.ndarray, truth: np.ndarray, regions: np.ndarray,
     out = {"psnr": {}, **{k: {} for k in maps}}
     for name, mask in masks.items():
         empty = not mask.any()
-        mse = float(np.mean((p[mask] - t[mask]) ** 2)) if not empty else None
-        out["psnr"][name] = None if empty else round(10 * np.log10(1.0 / max(mse, 1e-12)), 3)
+        out["psnr"][name] = None if empty else round(pooled_psnr(p, t, mask), 3)
         for metric, m in maps.items():
             out[metric][name] = None if empty else round(float(m[mask].mean()), 4)
     return out
