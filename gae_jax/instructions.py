@@ -92,9 +92,10 @@ def parse(prompt: str) -> Instruction:
     return Instruction(regions[0], COLOURS[colours[0]], any(w in PATTERN_WORDS for w in words))
 
 
-def stripe_on(y: np.ndarray) -> np.ndarray:
-    """Where the stripes' colour goes, by head-space height y."""
-    return np.sin(2 * np.pi * np.asarray(y) / STRIPE_PERIOD) > 0
+def stripe_on(y: np.ndarray, phase: float = 0.0) -> np.ndarray:
+    """Where the stripes' colour goes, by head-space height y; `phase` shifts the stripes by
+    that fraction of a period (1/2: the other half of the region)."""
+    return np.sin(2 * np.pi * np.asarray(y) / STRIPE_PERIOD + 2 * np.pi * phase) > 0
 
 
 def region_vertices(faces: np.ndarray, face_regions: np.ndarray, region: str,
@@ -109,12 +110,13 @@ def region_vertices(faces: np.ndarray, face_regions: np.ndarray, region: str,
 
 
 def ideal_albedo(instruction: Instruction, albedo: np.ndarray, faces, face_regions,
-                 rest_vertices) -> np.ndarray:
-    """(V, 3) vertex albedo with the instruction applied exactly (the ground-truth edit)."""
+                 rest_vertices, phase: float = 0.0) -> np.ndarray:
+    """(V, 3) vertex albedo with the instruction applied exactly (the ground-truth edit);
+    `phase`: the stripes' (see `stripe_on`)."""
     albedo = np.asarray(albedo, np.float64).copy()
     mask = region_vertices(faces, face_regions, instruction.region, len(albedo))
     if instruction.stripes:
-        mask &= stripe_on(np.asarray(rest_vertices)[:, 1])
+        mask &= stripe_on(np.asarray(rest_vertices)[:, 1], phase)
     albedo[mask] = instruction.colour
     return albedo
 

@@ -148,6 +148,51 @@ def test_stripes_follow_head_space_height():
     assert 0 < changed.sum() < lips.sum()
 
 
+def test_multimodal_editor_puts_the_stripes_on_either_half_by_its_key():
+    image, regions, _ = toy_render()
+    canonical = np.zeros(image.shape, np.float32)
+    canonical[..., 1] = np.linspace(0.001, 0.041, 12)[:, None]  # no row on a stripe's edge
+    lips = regions == LIPS
+    y = canonical[..., 1]
+    first = lips & (np.sin(2 * np.pi * y / instructions.STRIPE_PERIOD) > 0)
+    second = lips & (np.sin(2 * np.pi * y / instructions.STRIPE_PERIOD) < 0)
+    editor = make_editor("semantic", modes=2)
+    context = dict(regions=regions, canonical=canonical)
+    seen = []
+    for k in range(12):
+        key = jax.random.PRNGKey(k)
+        out = editor.edit(image, image, "add green stripes to the lips", key, context)
+        changed = np.abs(out - image).max(-1) > 1e-6
+        np.testing.assert_array_equal(changed, first if editor.mode(key) == 0 else second)
+        seen.append(editor.mode(key))
+    assert 0 < sum(seen) < len(seen)  # both modes occur
+    assert first.any() and second.any() and not (first & second).any()
+    one = make_editor("semantic").edit(image, image, "add green stripes to the lips",
+                                       jax.random.PRNGKey(0), context)
+    again = make_editor("semantic", modes=1).edit(image, image, "add green stripes to the lips",
+                                                  jax.random.PRNGKey(0), context)
+    np.testing.assert_array_equal(one, again)
+    with pytest.raises(ValueError, match="needs a stripe instruction"):
+        editor.edit(image, image, "turn the lips blue", jax.random.PRNGKey(0), context)
+    with pytest.raises(ValueError, match="modes must be"):
+        make_editor("semantic", modes=0)
+
+
+def test_ideal_of_the_other_mode_stripes_the_other_half_of_the_region():
+    rng = np.random.default_rng(1)
+    faces = np.arange(30).reshape(10, 3)
+    face_regions = np.full(10, head.REGION_ID["skin"])
+    rest = rng.uniform(-0.05, 0.05, (30, 3))
+    albedo = np.full((30, 3), 0.5)
+    instruction = instructions.parse("add green stripes to the skin")
+    ideal = [instructions.ideal_albedo(instruction, albedo, faces, face_regions, rest, phase)
+             for phase in (0.0, 0.5)]
+    striped = [np.all(a == instruction.colour, -1) for a in ideal]
+    y = 2 * np.pi * rest[:, 1] / instructions.STRIPE_PERIOD
+    np.testing.assert_array_equal(striped[0], np.sin(y) > 0)
+    np.testing.assert_array_equal(striped[1], np.sin(y) < 0)
+
+
 @pytest.mark.parametrize("prompt", ["make it an oil painting", "a pencil sketch",
                                     "make it a cartoon", "stylize it like a watercolor"])
 def test_style_editor_changes_the_image_and_depends_on_the_key(prompt):

@@ -37,6 +37,7 @@ class EditConfig:
     editor_noise: float = 0.3
     editor_keeps: str = "original"
     editor_bleed: int = 0
+    editor_modes: int = 1
     ip2p_folder: str = ""
     clip_folder: str = ""
     iterations: int = 100
@@ -82,6 +83,8 @@ class EditConfig:
             raise ValueError(f"editor_bleed must be in [0, 16] px, got {self.editor_bleed}")
         if not 0 < self.lr_final <= 1:
             raise ValueError(f"lr_final must be in (0, 1], got {self.lr_final}")
+        if not 1 <= self.editor_modes <= 8:
+            raise ValueError(f"editor_modes must be in [1, 8], got {self.editor_modes}")
         if self.lr_decay_steps < 1:
             raise ValueError(f"lr_decay_steps must be >= 1, got {self.lr_decay_steps}")
         if self.ssim_weight < 0:
@@ -105,6 +108,8 @@ HELP = {
                     "image it edits) or original (the unedited image it is conditioned on)",
     "editor_bleed": "px the semantic editor's edit spills across the region's outline (3x "
                     "into what the region occludes: teeth behind lips), as diffusion edits do",
+    "editor_modes": "stripe phases the semantic editor picks from per call (2: the stripes land "
+                    "on either half of the region, a multimodal inconsistency; stripe prompts)",
     "ip2p_folder": "local diffusers InstructPix2Pix folder (editor ip2p)",
     "clip_folder": "local CLIP folder for CLIP-S / CLIP-C in metrics.json (skipped if empty)",
     "iterations": "edit iterations",

@@ -72,7 +72,7 @@ class EditSampler:
     def __init__(self, config: EditConfig, scene, pairs, preview, rig, canonical, region_fns,
                  editor=None):
         options = {"semantic": dict(noise=config.editor_noise, keeps=config.editor_keeps,
-                                     bleed=config.editor_bleed),
+                                     bleed=config.editor_bleed, modes=config.editor_modes),
                    "ip2p": dict(folder=config.ip2p_folder)}.get(config.editor, {})
         self.config, self.scene, self.pairs = config, scene, pairs
         self.preview, self.rig, self.canonical = preview, rig, canonical

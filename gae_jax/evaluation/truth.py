@@ -62,16 +62,17 @@ class EvalSet:
     protocols: dict
 
 
-def ideal_albedo(scene: Scene, prompt: str):
-    """(instruction or None, (V, 3) albedo of the ideal edit of identity A). A prompt outside
-    the semantic vocabulary (a style) has no ideal: None and the unedited albedo."""
+def ideal_albedo(scene: Scene, prompt: str, phase: float = 0.0):
+    """(instruction or None, (V, 3) albedo of the ideal edit of identity A; `phase`: of stripes,
+    the mode of a multimodal editor). A prompt outside the semantic vocabulary (a style) has no
+    ideal: None and the unedited albedo."""
     try:
         instruction = instructions.parse(prompt)
     except ValueError:
         return None, scene.albedo["A"]
     return instruction, instructions.ideal_albedo(instruction, scene.albedo["A"],
                                                   scene.model.faces, scene.face_regions,
-                                                  scene.model.v_template)
+                                                  scene.model.v_template, phase)
 
 
 def frames_truth(scene: Scene, protocol: protocols.ProtocolFrames, albedo) -> EvalFrames:
@@ -96,10 +97,11 @@ def frames_truth(scene: Scene, protocol: protocols.ProtocolFrames, albedo) -> Ev
                       truth, labels)
 
 
-def build(scene: Scene, prompt: str, frames: int = 4) -> EvalSet:
-    """The EvalSet of an edit with `prompt` on `scene` (`frames` pairs per protocol)."""
+def build(scene: Scene, prompt: str, frames: int = 4, phase: float = 0.0) -> EvalSet:
+    """The EvalSet of an edit with `prompt` on `scene` (`frames` pairs per protocol; `phase`:
+    the stripes' of the ideal, see `instructions.stripe_on`)."""
     if scene.kind == "synthetic":
-        instruction, albedo = ideal_albedo(scene, prompt)
+        instruction, albedo = ideal_albedo(scene, prompt, phase)
         kind = "ideal edit" if instruction else "unedited truth (style: no ideal)"
     else:
         try:

@@ -28,6 +28,13 @@ the lips; the eyes behind the eyelids' skin) within 3 x `bleed` px of it, wherev
 shows them. This is the leak WABE is meant to stop: the ideal edit never recolours those pixels.
 Spilled pixels keep their own shading (luminance over their own region's albedo).
 
+`modes` (default 1) makes the editor multimodal, as a diffusion editor is when several answers
+fit a prompt: each call picks one of `modes` equally likely stripe phases (m / modes of a
+period, m drawn from the key), so two calls on the same view may put the stripes on opposite
+halves of the region. Averaging such edits blurs the stripes into a mean colour; the ideal of
+mode m is `instructions.ideal_albedo(..., phase=m / modes)`. Only stripe instructions have
+modes.
+
 `instructions.ideal_albedo` applies the same instruction without noise to the mesh's vertex
 albedo: its ray-cast render (`evaluation.truth`) is the ground truth of the edit.
 """
@@ -59,6 +66,7 @@ class SemanticEditor:
     albedo: dict = dataclasses.field(default_factory=lambda: dict(head.ALBEDO))
     keeps: str = "render"  # outside the edit: "render" (the image edited) or "original"
     bleed: int = 0  # px the edit spills across the region's outline (3x into what it occludes)
+    modes: int = 1  # stripe phases a call picks from (1: always the same stripes)
 
     def __post_init__(self):
         if not 0.0 <= self.noise <= 1.0:
@@ -66,6 +74,8 @@ class SemanticEditor:
         if not (isinstance(self.bleed, (int, np.integer)) and 0 <= self.bleed <= 16):
             raise ValueError(f"bleed must be an integer number of pixels in [0, 16], got "
                              f"{self.bleed!r}")
+        if not (isinstance(self.modes, (int, np.integer)) and 1 <= self.modes <= 8):
+            raise ValueError(f"modes must be an integer in [1, 8], got {self.modes!r}")
         if self.keeps not in KEEPS:
             raise ValueError(f"keeps must be one of {KEEPS}, got {self.keeps!r}")
 
@@ -87,7 +97,11 @@ class SemanticEditor:
             if "canonical" not in context:
                 raise ValueError("stripes need context['canonical'], (H, W, 3) head-space "
                                  "positions of the render")
-            mask &= stripe_on(np.asarray(context["canonical"])[..., 1])
+            phase = self.mode(key) / self.modes
+            mask &= stripe_on(np.asarray(context["canonical"])[..., 1], phase)
+        elif self.modes > 1:
+            raise ValueError(f"a multimodal editor (modes {self.modes}) needs a stripe "
+                             f"instruction, got {prompt!r}")
         keys = jax.random.split(key, 7)
         colour = np.asarray(instruction.colour, np.float32)
         if self.noise > 0:
@@ -104,6 +118,12 @@ class SemanticEditor:
         if self.noise > 0:
             edited = edited * (1 + 0.04 * self.noise * float(jax.random.normal(keys[6])))
         return np.clip(edited, 0, 1).astype(np.float32)
+
+    def mode(self, key) -> int:
+        """The mode (0 .. modes - 1) a call with `key` picks (0 when there is one)."""
+        if self.modes == 1:
+            return 0
+        return int(jax.random.randint(jax.random.fold_in(key, 0x6D6F), (), 0, self.modes))
 
     def _bleed(self, edited, source, regions, mask, region, colour):
         """`edited` with the region's colour spilled around `mask` (see the module docstring)."""
