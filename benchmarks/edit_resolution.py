@@ -78,7 +78,14 @@ def main():
     parser.add_argument("--sizes", nargs="+", type=int, default=[128, 256, 512])
     parser.add_argument("--iterations", type=int, default=8)
     parser.add_argument("--out", default="benchmarks/results/edit_resolution.json")
+    parser.add_argument("--kernel", default="auto", choices=["auto", "jax"],
+                        help="the renderer's compositor and depth sort: the C++ kernels where "
+                             "built (auto) or pure JAX")
     args = parser.parse_args()
+    from gae_jax.render import splat
+
+    # Benchmark-only: every render of this process takes the chosen path.
+    splat.render.__kwdefaults__["kernel"] = args.kernel
     from gae_jax import train
     from gae_jax.edit.config import EditConfig
     from gae_jax.scene import synthetic
@@ -90,7 +97,7 @@ def main():
     for size in args.sizes:
         results.append(time_size(scene, original, size, args.iterations))
         print(json.dumps(results[-1]), flush=True)
-    result = dict(target_512_s=1.0, results=results)
+    result = dict(target_512_s=1.0, kernel=args.kernel, results=results)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     atomic_write_bytes(args.out, json.dumps(result, indent=1).encode())
     print(json.dumps(result))

@@ -3,8 +3,11 @@
     python benchmarks/render.py [--configs 2000x128 50000x256 50000x512] [--repeats 7]
 
 Prints one JSON object per configuration (and a summary list at the end): median (and minimum)
-milliseconds after warm-up, (pixel, Gaussian) pair evaluations per second, overflowed tiles, tile capacity and
-peak RSS, and the same scene timed in the same process with `benchmarks/tile_reference.py` (a
+milliseconds after warm-up with the C++ compositor (`gae_jax.render.cpu_kernel`, the default on
+CPU) and, in the same process, with the pure-JAX one (`jax_*`, `kernel_speedup_*`), (pixel,
+Gaussian) pair evaluations per second against the exp bound (cores / numpy's time per float32
+exp, measured in the same process), overflowed tiles, tile capacity and peak RSS, and the same
+scene timed in the same process with `benchmarks/tile_reference.py` (a
 plain torch transcription of the standard tile algorithm, autograd for the backward; best of 3)
 with our speed-up over it (our best time against its best time). Each configuration runs in its
 own process so that peak RSS is its own (the reference's torch tensors count in it). The tile capacity
@@ -24,6 +27,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 REFERENCE_REPEATS = 3  # the tile reference is slow; its best of 3 is its time
+KERNELS = ("auto", "jax")  # the C++ compositor where built, and the pure-JAX one
 
 
 def reference_ms(g, camera, weights) -> tuple:
@@ -71,7 +75,7 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
     import jax.numpy as jnp
     import numpy as np
 
-    from gae_jax.render import splat, wabe
+    from gae_jax.render import cpu_kernel, splat, wabe
     from gae_jax.util.compile import compiler_options
     from gae_jax.demo import random_frustum_scene
     from gae_jax.render.projection import project
@@ -84,13 +88,8 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
     max_count = int(probe.counts.max())
     capacity = max(32, -(-max_count // 32) * 32)
 
-    def image(g):
-        return splat.render(g, camera, blend=blend, tile_capacity=capacity, unroll=unroll)
-
     opts = compiler_options() if options == "fast" else None
-    forward = jax.jit(lambda g: image(g).image, compiler_options=opts)
     weights = jax.random.uniform(jax.random.PRNGKey(0), (size, size, 3))
-    grad = jax.jit(jax.grad(lambda g: jnp.sum(image(g).image * weights)), compiler_options=opts)
 
     def timings_ms(fn):
         jax.block_until_ready(fn(g))
@@ -101,7 +100,32 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
             times.append(time.perf_counter() - start)
         return 1e3 * float(np.median(times)), 1e3 * float(np.min(times))
 
-    (fwd_ms, fwd_min), (fwd_bwd_ms, fwd_bwd_min) = timings_ms(forward), timings_ms(grad)
+    timed = {}
+    for kernel in KERNELS:
+        def image(g, kernel=kernel):
+            return splat.render(g, camera, blend=blend, tile_capacity=capacity, unroll=unroll,
+                                kernel=kernel)
+
+        forward = jax.jit(lambda g, image=image: image(g).image, compiler_options=opts)
+        grad = jax.jit(jax.grad(lambda g, image=image: jnp.sum(image(g).image * weights)),
+                       compiler_options=opts)
+        timed[kernel] = timings_ms(forward) + timings_ms(grad)
+    # The compositor alone (the tile lists fixed): what the exp bound speaks to.
+    from gae_jax.render import composite as comp
+
+    bins = bin_gaussians(p.means2d, p.extents, p.depths, p.visible, size, size, capacity)
+    packed = jnp.concatenate([p.means2d, p.conics, p.opacities[:, None], p.depths[:, None],
+                              jnp.asarray(g.colors)], axis=-1)
+    packed = jnp.where(p.visible[:, None], packed, 0.0)
+    composite_ms = {}
+    for kernel in KERNELS:
+        cfg = comp.CompositeConfig(blend=blend, alpha_clamp=0.99, tiles_x=bins.tiles_x,
+                                   tiles_y=bins.tiles_y, unroll=unroll, kernel=kernel)
+        only = jax.jit(lambda x, cfg=cfg: comp.composite(cfg, bins.table, bins.kept, x)[0],
+                       compiler_options=opts)
+        composite_ms[kernel] = timings_ms(lambda _, only=only: only(packed))[1]
+    (fwd_ms, fwd_min, fwd_bwd_ms, fwd_bwd_min) = timed["auto"]
+    (jax_fwd_ms, jax_fwd_min, jax_fwd_bwd_ms, jax_fwd_bwd_min) = timed["jax"]
     # Machine-speed probe: this VM's speed drifts by up to 2x over an hour, so each result carries
     # the time numpy needs per float32 exp, measured in the same process.
     exp_input = np.random.default_rng(0).uniform(-5, 0, 4_000_000).astype(np.float32)
@@ -111,7 +135,8 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
         np.exp(exp_input)
     numpy_exp_ns = (time.perf_counter() - start) / (5 * exp_input.size) * 1e9
     ref = reference_ms(g, camera, weights) if reference else None
-    out = jax.jit(image)(g)
+    cores = os.cpu_count() or 1
+    out = jax.jit(lambda g: splat.render(g, camera, blend=blend, tile_capacity=capacity))(g)
     pairs = int(jnp.sum(probe.counts)) * 256  # pixel-Gaussian pairs the tile lists imply
     walked = int(out.stats.num_slots) * 256 * int(probe.counts.shape[0])
     return dict(
@@ -121,8 +146,19 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
         overflow_tiles=int(out.stats.overflow_tiles), dropped_pairs=int(out.stats.dropped_pairs),
         forward_ms=round(fwd_ms, 2), forward_backward_ms=round(fwd_bwd_ms, 2),
         forward_min_ms=round(fwd_min, 2), forward_backward_min_ms=round(fwd_bwd_min, 2),
+        kernel=cpu_kernel.available(),
+        jax_forward_ms=round(jax_fwd_ms, 2), jax_forward_backward_ms=round(jax_fwd_bwd_ms, 2),
+        kernel_speedup_forward=round(jax_fwd_min / fwd_min, 2),
+        kernel_speedup_forward_backward=round(jax_fwd_bwd_min / fwd_bwd_min, 2),
         tile_pairs_per_s_forward=round(pairs / (fwd_ms * 1e-3)),
         walked_pairs_per_s_forward=round(walked / (fwd_ms * 1e-3)),
+        exp_bound_per_s=round(cores / (numpy_exp_ns * 1e-9)),
+        composite_min_ms=round(composite_ms["auto"], 2),
+        jax_composite_min_ms=round(composite_ms["jax"], 2),
+        composite_share_of_exp_bound=round(
+            walked / (composite_ms["auto"] * 1e-3) / (cores / (numpy_exp_ns * 1e-9)), 3),
+        forward_share_of_exp_bound=round(walked / (fwd_ms * 1e-3) / (cores / (numpy_exp_ns * 1e-9)),
+                                         3),
         numpy_exp_ns=round(numpy_exp_ns, 3),
         peak_rss_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
         devices=str(jax.devices()), jax_version=jax.__version__,

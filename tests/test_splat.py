@@ -7,6 +7,7 @@ import pytest
 from jax.test_util import check_grads
 
 from gae_jax.render import composite as comp
+from gae_jax.render.composite_reference import composite_reference
 from gae_jax.render import splat, wabe
 from gae_jax.render.camera import look_at_w2c, make_camera
 from gae_jax.render.projection import project
@@ -215,7 +216,7 @@ def test_custom_vjp_matches_autodiff_of_dense_reference(x64, blend):
         return comp.composite(cfg, bins.table, bins.kept, x)[:3]
 
     def dense(x):
-        return comp.composite_reference(cfg, bins.table, x)
+        return composite_reference(cfg, bins.table, x)
 
     out_f, vjp_f = jax.vjp(jax.jit(fused), packed)
     out_d, vjp_d = jax.vjp(jax.jit(dense), packed)

@@ -15,8 +15,8 @@ iff its alpha passes the cut-offs and it lies before that last slot (no terminat
 replayed), T is recovered as T_{j+1} / (1 - a_j) (a_j <= 0.99 keeps this stable), and the suffix
 sums the gradient needs are accumulated on the way. Per-slot gradients are summed over the tile's
 pixels immediately, so memory is O(tiles x capacity x params), never O(pixels x capacity).
-`composite_reference` is the same function written densely with `cumprod` for autodiff, used to
-test the custom VJP.
+`composite_reference.composite_reference` is the same function written densely with `cumprod`
+for autodiff, used to test the custom VJP.
 
 Packed per-Gaussian parameters, (N, 7 + C): mean x, mean y, conic a, b, c, opacity, depth, colour.
 Pixels are laid out per tile: (num_tiles, 256, ...), tile-major in row order.
@@ -32,13 +32,14 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from gae_jax.render import wabe
+from gae_jax.render import cpu_kernel, wabe
 from gae_jax.render.projection import ALPHA_THRESHOLD
 from gae_jax.render.tiles import TILE_SIZE
 
 TRANSMITTANCE_MIN = 1e-4
 PIXELS_PER_TILE = TILE_SIZE * TILE_SIZE
 NUM_GEOMETRY_PARAMS = 7  # mean (2), conic (3), opacity, depth
+KERNELS = ("auto", "jax")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,6 +58,10 @@ class CompositeConfig:
       front_contributors: how many first contributors of a pixel count for the visibility weight
         (0: the visibility statistic is not computed).
       visibility_beta: beta of the visibility weight exp(-beta (1 - T)) alpha.
+      kernel: "auto" composites float32 on CPU with the C++ kernel (`cpu_kernel`) when it is
+        built, and with the pure-JAX walk elsewhere (GPU/TPU, float64, kernel not built);
+        "jax" always uses the pure-JAX walk (the reference the kernel is tested against).
+      kernel_threads: the kernel's worker threads (0: one per hardware thread).
     """
 
     blend: wabe.Blend
@@ -68,6 +73,14 @@ class CompositeConfig:
     tiles_per_chunk: int = 32
     front_contributors: int = 0
     visibility_beta: float = wabe.PAPER_BETA
+    kernel: str = "auto"
+    kernel_threads: int = 0
+
+    def __post_init__(self):
+        if self.kernel not in KERNELS:
+            raise ValueError(f"kernel must be one of {KERNELS}, got {self.kernel!r}")
+        if self.kernel_threads < 0:
+            raise ValueError(f"kernel_threads must be >= 0, got {self.kernel_threads}")
 
 
 def pixel_centres(tiles_x: int, tiles_y: int, dtype=jnp.float32) -> jax.Array:
@@ -265,10 +278,8 @@ def _composite_fwd(cfg, table, kept, packed):
     color, t, depth, last, pixels, vis = lax.map(
         lambda a: _forward_chunk(cfg, a[0], a[1], a[2], num_channels), (lists, pix, slots))
     color, t, depth, last, pixels = (chunks.merge(x) for x in (color, t, depth, last, pixels))
-    n = packed.shape[0]
-    visibility = (_scatter_to_gaussians(chunks.merge(vis), table, n, reduce="max")
-                  if cfg.front_contributors > 0 else jnp.zeros((n,), packed.dtype))
-    stats = (_scatter_to_gaussians(pixels, table, n), visibility)
+    vis = chunks.merge(vis) if cfg.front_contributors > 0 else None
+    stats = _per_gaussian_stats(cfg, table, pixels, vis, packed.shape[0])
     return (color, t, depth, stats), (table, kept, packed, t, last)
 
 
@@ -382,6 +393,40 @@ def _composite_bwd(cfg, residuals, cotangents):
 _composite.defvjp(_composite_fwd, _composite_bwd)
 
 
+def _per_gaussian_stats(cfg, table, pixels, visibility, num_gaussians):
+    """Per-slot pixel counts and visibility weights (T, cap) -> per Gaussian (N,) each."""
+    visibility = (_scatter_to_gaussians(visibility, table, num_gaussians, reduce="max")
+                  if cfg.front_contributors > 0 else jnp.zeros((num_gaussians,), pixels.dtype))
+    return _scatter_to_gaussians(pixels, table, num_gaussians), visibility
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _composite_kernel(cfg: CompositeConfig, table, kept, packed):
+    out, _ = _composite_kernel_fwd(cfg, table, kept, packed)
+    return out
+
+
+def _composite_kernel_fwd(cfg, table, kept, packed):
+    color, t, depth, last, pixels, vis = cpu_kernel.forward(cfg, table, kept, packed)
+    stats = _per_gaussian_stats(cfg, table, pixels, vis, packed.shape[0])
+    return (color, t, depth, stats), (table, kept, packed, t, last)
+
+
+def _composite_kernel_bwd(cfg, residuals, cotangents):
+    table, kept, packed, t_final, last = residuals
+    g_color, g_t, g_depth, _ = cotangents
+    grads = cpu_kernel.backward(cfg, table, kept, packed, t_final, last, g_color, g_t, g_depth)
+    return None, None, _scatter_to_gaussians(grads, table, packed.shape[0])
+
+
+_composite_kernel.defvjp(_composite_kernel_fwd, _composite_kernel_bwd)
+
+
+def uses_kernel(cfg: CompositeConfig, dtype) -> bool:
+    """True when `composite` runs the C++ kernel for `dtype` parameters on a CPU device."""
+    return cfg.kernel == "auto" and jnp.dtype(dtype) == jnp.float32 and cpu_kernel.available()
+
+
 def composite(cfg: CompositeConfig, table: jax.Array, kept: jax.Array, packed: jax.Array):
     """Composites tile lists.
 
@@ -396,44 +441,10 @@ def composite(cfg: CompositeConfig, table: jax.Array, kept: jax.Array, packed: j
       first `front_contributors` contributors; zeros when that is 0). Statistics carry no
       gradient.
     """
-    color, t, depth, stats = _composite(cfg, table, kept, packed)
+    if uses_kernel(cfg, packed.dtype):
+        color, t, depth, stats = lax.platform_dependent(
+            table, kept, packed, cpu=partial(_composite_kernel, cfg),
+            default=partial(_composite, cfg))
+    else:
+        color, t, depth, stats = _composite(cfg, table, kept, packed)
     return color, t, depth, jax.tree_util.tree_map(lax.stop_gradient, stats)
-
-
-def _scale_gradient(x, scale):
-    """Identity in value; the gradient reaching x is multiplied by `scale` (no gradient)."""
-    scale = lax.stop_gradient(scale)
-    return x * scale + lax.stop_gradient(x * (1.0 - scale))
-
-
-def composite_reference(cfg: CompositeConfig, table: jax.Array, packed: jax.Array):
-    """Dense (T, 256, capacity) version of `composite` for autodiff; test-sized inputs only."""
-    rows = jnp.concatenate([packed, jnp.zeros((1, packed.shape[1]), packed.dtype)])
-    lists = rows[jnp.where(table < 0, packed.shape[0], table)]
-    pix = pixel_centres(cfg.tiles_x, cfg.tiles_y, lists.dtype)
-    g = lists[:, None, :, :]  # (T, 1, cap, K)
-    dx = pix[..., 0:1] - g[..., 0]
-    dy = pix[..., 1:2] - g[..., 1]
-    q = g[..., 2] * dx * dx + 2.0 * g[..., 3] * dx * dy + g[..., 4] * dy * dy
-    alpha = jnp.minimum(cfg.alpha_clamp, g[..., 5] * jnp.exp(-0.5 * q))
-    valid = (alpha >= ALPHA_THRESHOLD) & (q >= 0.0)
-    t_after = jnp.cumprod(jnp.where(valid, 1.0 - alpha, 1.0), axis=-1)
-    use = valid & (t_after >= TRANSMITTANCE_MIN)
-    one_minus = jnp.where(use, 1.0 - alpha, 1.0)
-    t_before = jnp.cumprod(jnp.concatenate([jnp.ones_like(one_minus[..., :1]),
-                                            one_minus[..., :-1]], axis=-1), axis=-1)
-    blend = cfg.blend
-    colour = jnp.broadcast_to(g[..., NUM_GEOMETRY_PARAMS:], alpha.shape + (g.shape[-1] - 7,))
-    depth = jnp.broadcast_to(g[..., 6], alpha.shape)
-    if blend.mode == "wabe_grad":
-        w = blend.weight(t_before)
-        alpha = _scale_gradient(alpha, w)
-        colour = _scale_gradient(colour, w[..., None])
-        depth = _scale_gradient(depth, w)
-        one_minus = jnp.where(use, 1.0 - alpha, 1.0)
-        t_before = jnp.cumprod(jnp.concatenate([jnp.ones_like(one_minus[..., :1]),
-                                                one_minus[..., :-1]], axis=-1), axis=-1)
-    contrib = jnp.where(use, alpha * t_before, 0.0)
-    weighted = contrib * blend.weight(t_before) if blend.weights_forward else contrib
-    color = jnp.sum(weighted[..., None] * colour, axis=2)
-    return color, jnp.prod(one_minus, axis=-1), jnp.sum(contrib * depth, axis=-1)

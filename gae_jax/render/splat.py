@@ -129,7 +129,7 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
            screen_offset: jax.Array | None = None, unroll: int = 8, unroll_backward: int = 8,
            tiles_per_chunk: int = 32,
            visibility_contributors: int = 0,
-           visibility_beta: float = wabe.PAPER_BETA) -> RenderOutput:
+           visibility_beta: float = wabe.PAPER_BETA, kernel: str = "auto") -> RenderOutput:
     """Renders Gaussians into camera.height x camera.width.
 
     Args:
@@ -148,6 +148,8 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
       visibility_contributors: when > 0, compute `stats.visibility` over each pixel's first this
         many contributors (the official code uses 10); 0 skips it (zeros) and saves time.
       visibility_beta: beta of the visibility statistic.
+      kernel: "auto" (the C++ compositor for float32 and the C++ depth sort on CPU when built,
+        see `cpu_kernel`) or "jax" (always the pure-JAX compositor and `lax.sort`).
     """
     check_gaussians(gaussians)
     if not 0.0 < alpha_clamp < 1.0:
@@ -165,7 +167,8 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
         raise ValueError(f"background must have shape ({num_channels},), got {background.shape}")
 
     bins = bin_gaussians(jax.lax.stop_gradient(means2d), proj.extents, proj.depths,
-                         proj.visible, camera.width, camera.height, tile_capacity, max_pairs)
+                         proj.visible, camera.width, camera.height, tile_capacity, max_pairs,
+                         kernel=kernel)
     packed = jnp.concatenate([
         means2d, proj.conics, proj.opacities[:, None], proj.depths[:, None], colors], axis=-1)
     # Culled Gaussians never appear in a list; zero their row so no NaN from a culled projection
@@ -176,7 +179,7 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
                                unroll_backward=int(unroll_backward),
                                tiles_per_chunk=int(tiles_per_chunk),
                                front_contributors=int(visibility_contributors),
-                               visibility_beta=float(visibility_beta))
+                               visibility_beta=float(visibility_beta), kernel=kernel)
     color, transmittance, depth_acc, (pixels, visibility) = comp.composite(
         cfg, bins.table, bins.kept, packed)
 

@@ -20,6 +20,8 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from gae_jax.render import cpu_kernel
+
 TILE_SIZE = 16
 # Safety margin on the extent so that rounding in the compositor can never give alpha >= 1/255 to
 # a pixel that binning left out; over-inclusion only costs work.
@@ -79,25 +81,33 @@ def tile_rectangles(means2d, extents, visible, width: int, height: int):
             jnp.where(empty, 0, y0), jnp.where(empty, -1, y1))
 
 
-def depth_order(depths, visible):
-    """(N,) int32 permutation: visible Gaussians by (depth, index), culled ones last."""
+def depth_order(depths, visible, kernel: str = "auto"):
+    """(N,) int32 permutation: visible Gaussians by (depth, index), culled ones last. `kernel`
+    "auto" sorts with the C++ argsort on CPU where it is built (XLA:CPU's stable two-operand
+    sort is several times slower), "jax" with `lax.sort`; the permutation is the same."""
     n = depths.shape[0]
     # Non-negative IEEE floats order like their bit patterns, and integer sorts are far faster on
     # CPU than float sorts (which go through a total-order comparator).
     bits = lax.bitcast_convert_type(jnp.maximum(depths, 0.0).astype(jnp.float32), jnp.int32)
     key = jnp.where(visible, bits, jnp.iinfo(jnp.int32).max)
-    _, order = lax.sort((key, jnp.arange(n, dtype=jnp.int32)), num_keys=1, is_stable=True)
-    return order
+
+    def in_jax(key):
+        return lax.sort((key, jnp.arange(n, dtype=jnp.int32)), num_keys=1, is_stable=True)[1]
+
+    if kernel == "auto" and cpu_kernel.available():
+        return lax.platform_dependent(key, cpu=cpu_kernel.argsort, default=in_jax)
+    return in_jax(key)
 
 
 def bin_gaussians(means2d, extents, depths, visible, width: int, height: int, capacity: int,
-                  max_pairs: int | None = None) -> TileBins:
+                  max_pairs: int | None = None, kernel: str = "auto") -> TileBins:
     """Builds the per-tile lists for an image of width x height.
 
     Args:
       means2d: (N, 2) projected means; extents: (N, 2) half-widths; depths: (N,); visible: (N,).
       capacity: list length per tile.
       max_pairs: static budget of (Gaussian, tile) pairs; defaults to num_tiles * capacity.
+      kernel: how the depth order is sorted (see `depth_order`).
     """
     if capacity < 1:
         raise ValueError(f"tile capacity must be >= 1, got {capacity}")
@@ -120,7 +130,7 @@ def bin_gaussians(means2d, extents, depths, visible, width: int, height: int, ca
     diff = diff.at[y1 + 1, x0].add(-one).at[y1 + 1, x1 + 1].add(one)
     counts = jnp.cumsum(jnp.cumsum(diff, axis=0, dtype=jnp.int32), axis=1, dtype=jnp.int32)[:tiles_y, :tiles_x].reshape(-1)
 
-    order = depth_order(depths, visible)
+    order = depth_order(depths, visible, kernel)
     count_by_rank = per_gaussian[order]
     ends = jnp.cumsum(count_by_rank, dtype=jnp.int32)
     starts = ends - count_by_rank

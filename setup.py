@@ -1,0 +1,65 @@
+"""Builds the optional C++ compositor and argsort (`gae_jax/render/kernel/*.cc`, see
+`gae_jax.render.cpu_kernel`) against the XLA FFI headers that jaxlib ships. Everything else is in
+pyproject.toml. A failed build is reported and skipped: the package then composites with its
+pure-JAX walk (slower on CPU, the same results).
+
+GAE_JAX_KERNEL_FLAGS replaces the machine-specific optimisation flags (default
+`-O3 -march=native`), e.g. for a wheel built on one machine and run on others.
+"""
+
+import os
+import shlex
+import sys
+
+from setuptools import Extension, setup
+from setuptools.command.build_ext import build_ext
+
+
+def _ffi_include() -> list:
+    try:
+        import jaxlib
+    except ImportError:
+        return []
+    return [os.path.join(os.path.dirname(jaxlib.__file__), "include")]
+
+
+class OptionalBuildExt(build_ext):
+    """build_ext that warns instead of failing when the kernel cannot be compiled."""
+
+    def run(self):
+        try:
+            super().run()
+        except Exception as error:  # noqa: BLE001 -- any compiler failure means "no kernel"
+            self._skip(error)
+
+    def build_extension(self, ext):
+        if not INCLUDE or not os.path.isdir(INCLUDE[0]):
+            self._skip("jaxlib's FFI headers were not found in the build environment")
+            return
+        try:
+            super().build_extension(ext)
+        except Exception as error:  # noqa: BLE001
+            self._skip(error)
+
+    @staticmethod
+    def _skip(why):
+        print(f"gae_jax: the C++ compositor kernel is not built ({why}); the pure-JAX "
+              "compositor will be used", file=sys.stderr)
+
+
+FLAGS = shlex.split(os.environ.get("GAE_JAX_KERNEL_FLAGS", "-O3 -march=native"))
+INCLUDE = _ffi_include()
+
+setup(
+    ext_modules=[Extension(
+        "gae_jax.render._composite_cpu",
+        sources=["gae_jax/render/kernel/composite_cpu.cc", "gae_jax/render/kernel/sort_cpu.cc"],
+        language="c++",
+        # -isystem: the XLA headers' own warnings are not ours.
+        extra_compile_args=["-std=c++17", "-fopenmp-simd", "-fno-math-errno",
+                            "-fno-trapping-math", "-Wall"]
+        + [f"-isystem{path}" for path in INCLUDE] + FLAGS,
+        extra_link_args=["-pthread"],
+    )],
+    cmdclass={"build_ext": OptionalBuildExt},
+)
