@@ -1,6 +1,7 @@
 """What one edit iteration costs at 128 / 256 / 512 px (issue 17: <= 1 s at 512).
 
     python benchmarks/edit_resolution.py [--sizes 128 256 512] [--iterations 8]
+                                         [--kernel auto|jax] [--adversarial true|false]
                                          [--out benchmarks/results/edit_resolution.json]
 
 The default scene's cameras and training images are scaled to each size (intrinsics x s, images
@@ -42,7 +43,7 @@ def scaled_scene(scene, size: int):
                                width=size, height=size, images=images, regions=regions)
 
 
-def time_size(scene, original, size: int, iterations: int) -> dict:
+def time_size(scene, original, size: int, iterations: int, adversarial: bool = True) -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -50,7 +51,7 @@ def time_size(scene, original, size: int, iterations: int) -> dict:
     from gae_jax.edit.config import EditConfig
     from gae_jax.edit.sampler import put_batch
 
-    config = EditConfig()
+    config = EditConfig(adversarial=adversarial)
     session = edit.setup(config, scaled_scene(scene, size), original)
     state = edit.fresh_state(session)
     sampler = edit.make_sampler(session)
@@ -78,6 +79,8 @@ def main():
     parser.add_argument("--sizes", nargs="+", type=int, default=[128, 256, 512])
     parser.add_argument("--iterations", type=int, default=8)
     parser.add_argument("--out", default="benchmarks/results/edit_resolution.json")
+    parser.add_argument("--adversarial", default="true", choices=["true", "false"],
+                        help="the temporal GAN in the step (the default edit has it)")
     parser.add_argument("--kernel", default="auto", choices=["auto", "jax"],
                         help="the renderer's compositor and depth sort: the C++ kernels where "
                              "built (auto) or pure JAX")
@@ -95,9 +98,11 @@ def main():
     original = train.original_avatar(scene, EditConfig().reconstruct_iterations, progress=False)
     results = []
     for size in args.sizes:
-        results.append(time_size(scene, original, size, args.iterations))
+        results.append(time_size(scene, original, size, args.iterations,
+                                 args.adversarial == "true"))
         print(json.dumps(results[-1]), flush=True)
-    result = dict(target_512_s=1.0, kernel=args.kernel, results=results)
+    result = dict(target_512_s=1.0, kernel=args.kernel, adversarial=args.adversarial == "true",
+                  results=results)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     atomic_write_bytes(args.out, json.dumps(result, indent=1).encode())
     print(json.dumps(result))

@@ -117,6 +117,15 @@ def default_scene_and_avatar():
     return scene, original_avatar(scene, preset("fast").reconstruct_iterations, progress=False)
 
 
+def save_figure(fig, path: str) -> None:
+    """Writes a matplotlib figure as a PNG at `path` atomically."""
+    import io
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=120)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
 def write_report(path: str, text: str) -> None:
     """Writes a study's Markdown (atomically) and prints it."""
     atomic_write_bytes(path, text.encode())

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import io
 import os
 import sys
 
@@ -33,7 +32,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import numpy as np  # noqa: E402
 
 from editbench import Bench, default_scene_and_avatar, fmt  # noqa: E402
-from editbench import write_report  # noqa: E402
+from editbench import save_figure, write_report  # noqa: E402
 
 from gae_jax.edit.config import EditConfig  # noqa: E402
 from gae_jax.evaluation import metrics, protocols, score, truth  # noqa: E402
@@ -116,7 +115,6 @@ def chart(table: list, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from gae_jax.util.fileio import atomic_write_bytes
 
     def plot(axis, field, style, label=None, color=None):
         values = [np.asarray(r[1][field]) for r in table]
@@ -143,9 +141,7 @@ def chart(table: list, path: str) -> None:
                  "(seed means, bars: min-max over seeds)",
                  fontsize=9)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=120)
-    atomic_write_bytes(path, buffer.getvalue())
+    save_figure(fig, path)
 
 
 def main():

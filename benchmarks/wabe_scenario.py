@@ -31,7 +31,7 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from editbench import Bench, default_scene_and_avatar, fmt, mean_over_protocols  # noqa: E402
-from editbench import write_report  # noqa: E402
+from editbench import save_figure, write_report  # noqa: E402
 from scenarios import closed_split  # noqa: E402
 
 from gae_jax.edit.config import EditConfig  # noqa: E402
@@ -66,8 +66,6 @@ def chart(table: list, untouched_teeth: float, path: str) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from gae_jax.util.fileio import atomic_write_bytes
-
     fig, ax = plt.subplots(figsize=(9, 4.2))
     x = np.arange(len(table))
     ax.bar(x - 0.2, [r[1] for r in table], 0.4, label="lips (edited) vs ideal", color="C0")
@@ -79,11 +77,7 @@ def chart(table: list, untouched_teeth: float, path: str) -> None:
                  "into the teeth?", fontsize=9)
     ax.legend(fontsize=8, loc="lower left")
     fig.tight_layout()
-    import io
-
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=120)
-    atomic_write_bytes(path, buffer.getvalue())
+    save_figure(fig, path)
 
 
 def main():
