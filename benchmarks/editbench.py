@@ -62,7 +62,7 @@ class Bench:
         (the oracle); `eval_scene` is scored instead of `scene` (a scenario that edits on part
         of a scene's training split and is scored on all of it)."""
         recorded = self.results.get(name)
-        if recorded is not None and _same_settings(recorded, config):
+        if recorded is not None and same_settings(recorded, config):
             return recorded
         session, fresh = self.session(config, scene, original)
         start = time.perf_counter()
@@ -74,7 +74,7 @@ class Bench:
             edited.colors, edited.means, edited.log_scales, edited.opacity_logits)))
         record = dict(config=dataclasses.asdict(config), edit_seconds=round(seconds, 1),
                       compiled_in_this_run=fresh, finite=finite, gaussians=int(edited.num),
-                      tile_capacity=session.rig.tile_capacity, renderer=_renderer(),
+                      tile_capacity=session.rig.tile_capacity, renderer=renderer_settings(),
                       final_losses=history[-1] if history else {}, **(extra or {}))
         if evaluate and finite:
             t = time.perf_counter()
@@ -93,18 +93,19 @@ class Bench:
         atomic_write_bytes(self.path, json.dumps(blob, indent=1).encode())
 
 
-def _renderer() -> dict:
+def renderer_settings() -> dict:
     """What a record depends on beyond its EditConfig."""
     from gae_jax.render import projection
 
     return dict(cov2d_dilation=projection.COV2D_DILATION)
 
 
-def _same_settings(record: dict, config: EditConfig) -> bool:
+def same_settings(record: dict, config: EditConfig) -> bool:
     """Whether `record` was made with `config` (fields it predates at their defaults) and this
     renderer."""
     saved = loop.with_defaults(record.get("config", {}), EditConfig)
-    return saved == _jsonable(dataclasses.asdict(config)) and record.get("renderer") == _renderer()
+    return (saved == _jsonable(dataclasses.asdict(config))
+            and record.get("renderer") == renderer_settings())
 
 
 def default_scene_and_avatar():

@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from editbench import Bench, mean_over_protocols  # noqa: E402
+from editbench import Bench, mean_over_protocols, renderer_settings, same_settings, save_figure  # noqa: E402,E501
 
 from gae_jax.edit import edit  # noqa: E402
 from gae_jax.edit.config import preset  # noqa: E402
@@ -56,9 +56,10 @@ def keep_most_opaque(avatar: av.Avatar, fraction: float, num_faces: int) -> av.A
 
 
 def run_variant(bench: Bench, name: str, knobs: dict, base, scene128):
-    if name in bench.results:
-        return bench.results[name]
     config = dataclasses.replace(base, iterations=knobs.get("iterations", base.iterations))
+    recorded = bench.results.get(name)
+    if recorded is not None and recorded.get("knobs") == knobs and same_settings(recorded, config):
+        return recorded
     size = knobs.get("size", 128)
     scene = scene128 if size == 128 else synthetic.make_synthetic_scene(size=size, progress=False)
     original = original_avatar(scene, base.reconstruct_iterations, progress=False)
@@ -80,7 +81,8 @@ def run_variant(bench: Bench, name: str, knobs: dict, base, scene128):
         scene128, original, posed_vertices(scene128, training_frames(scene128)[:1])).tile_capacity
     evaluation = score.evaluate_avatars(bench.evalset(scene128, config.prompt), edited,
                                         original, judge_capacity, session.step_config.blend)
-    record = dict(knobs=knobs, edit_seconds=round(seconds, 1), gaussians=int(edited.num),
+    record = dict(knobs=knobs, config=dataclasses.asdict(config), renderer=renderer_settings(),
+                  edit_seconds=round(seconds, 1), gaussians=int(edited.num),
                   tile_capacity=session.rig.tile_capacity, size=size,
                   iterations=config.iterations,
                   auto_tile_capacity=auto_capacity,
@@ -127,7 +129,7 @@ def plot(results: dict, path: str) -> dict:
         ax.legend(loc="lower right")
     fig.suptitle("Speed against accuracy: 'turn the lips blue', mean over 3 protocols")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     return fronts
 
 

@@ -10,6 +10,7 @@ from gae_jax import reconstruct
 from gae_jax.fit import densify, step
 from gae_jax.fit.config import FitStepConfig, ReconstructConfig
 from gae_jax.fit.fit import fit, initial_avatar
+from gae_jax.model import avatar as av
 from gae_jax.render import splat
 from gae_jax.scene import rig as rigs
 from gae_jax.scene import synthetic
@@ -29,6 +30,27 @@ def test_fit_lowers_the_photometric_loss(scene):
     assert photo[-30:].mean() < 0.7 * photo[:10].mean(), (photo[:10].mean(), photo[-30:].mean())
     assert max(h["overflow_tiles"] for h in history) == 0
     assert fitted.num == int(np.asarray(fitted.binding).shape[0]) > 0
+
+
+def test_a_fit_from_the_default_initial_avatar_is_the_default_fit(scene):
+    config = ReconstructConfig(iterations=3, seed=4)
+    given = initial_avatar(scene, config, jax.random.split(jax.random.PRNGKey(4))[1])
+    default, _ = fit(scene, config)
+    started, _ = fit(scene, config, initial=given)
+    for a, b in zip(jax.tree_util.tree_leaves(default), jax.tree_util.tree_leaves(started)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_a_fit_continues_from_a_denser_avatar_and_keeps_its_binding(scene):
+    config = ReconstructConfig(iterations=2)
+    base = initial_avatar(scene, config, jax.random.PRNGKey(0))
+    first = np.arange(base.num) < 50
+    denser = av.densify(base, first, np.zeros(base.num, bool), jax.random.PRNGKey(1))
+    fitted, history = fit(scene, config, initial=denser)
+    assert fitted.num == base.num + 50 == history[-1]["num_gaussians"]
+    np.testing.assert_array_equal(np.asarray(fitted.binding), np.asarray(denser.binding))
+    with pytest.raises(ValueError, match="sh_degree"):
+        fit(scene, ReconstructConfig(iterations=1, sh_degree=1), initial=denser)
 
 
 class Interrupt(Exception):

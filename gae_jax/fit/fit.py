@@ -61,8 +61,11 @@ def _save(path, state: FitState, fixed: av.Avatar, config, history, capacity):
 
 def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
         progress_fn: Optional[Callable[[int, dict], None]] = None,
-        checkpoint_dir: Optional[str] = None, resume: bool = False, progress: bool = False):
-    """Fits identity A's avatar on the scene's training split.
+        checkpoint_dir: Optional[str] = None, resume: bool = False, progress: bool = False,
+        initial: Optional[av.Avatar] = None):
+    """Fits identity A's avatar on the scene's training split, from GaussianAvatars'
+    initialisation or from `initial` (an avatar bound to the scene's mesh: a fit continued, or
+    started from a denser or edited avatar; the schedule restarts).
 
     Returns (Avatar, history): history is one dict of metrics per step (loss, photometric, psnr,
     overflow_tiles, num_gaussians). `progress` shows a tqdm bar with loss and PSNR;
@@ -82,7 +85,10 @@ def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
         fixed = av.Avatar(binding=jnp.asarray(arrays["binding"]),
                           regions=jnp.asarray(arrays["regions"]), **state.params)
     else:
-        fixed = initial_avatar(scene, config, init_key)
+        fixed = initial_avatar(scene, config, init_key) if initial is None else initial
+        if initial is not None and (initial.colors.ndim == 2) != (config.sh_degree is None):
+            raise ValueError("initial avatar's colours do not match config.sh_degree (plain RGB "
+                             "needs sh_degree None, SH coefficients an integer degree)")
         state = initial_state(fixed.trainable(), step_config, key)
     # Sized once from the initial avatar and kept through resumes (same shapes, same numerics).
     rig = rigs.put_rig(scene, fixed, vertices, tile_capacity=capacity)

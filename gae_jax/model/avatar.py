@@ -188,12 +188,14 @@ def init_from_mesh(vertices, faces, vertex_colors, face_regions, *, per_face: in
         colors=colors, regions=jnp.asarray(face_regions, jnp.int32)[binding])
 
 
-def _take(avatar: Avatar, index) -> Avatar:
+def take(avatar: Avatar, index) -> Avatar:
+    """The Gaussians at `index` (host indices or a bool mask), in that order."""
     index = np.asarray(index)
     return jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)[index]), avatar)
 
 
-def _concat(a: Avatar, b: Avatar) -> Avatar:
+def concat(a: Avatar, b: Avatar) -> Avatar:
+    """`a`'s Gaussians followed by `b`'s."""
     return jax.tree_util.tree_map(lambda x, y: jnp.concatenate([x, y]), a, b)
 
 
@@ -219,7 +221,7 @@ def prune(avatar: Avatar, remove, num_faces: int, return_source: bool = False,
         rescue = first[np.isin(binding[first], orphaned)]
         remove[rescue] = False
     source = np.flatnonzero(~remove)
-    pruned = _take(avatar, source)
+    pruned = take(avatar, source)
     return (pruned, source) if return_source else pruned
 
 
@@ -235,8 +237,8 @@ def densify(avatar: Avatar, clone, split, key, return_source: bool = False):
     if clone.shape != (avatar.num,) or split.shape != (avatar.num,):
         raise ValueError("clone and split masks must have shape (N,)")
     clone = clone & ~split
-    parents = _take(avatar, np.flatnonzero(split))
-    children = _concat(parents, parents)
+    parents = take(avatar, np.flatnonzero(split))
+    children = concat(parents, parents)
     m = parents.binding.shape[0]
     if m:
         noise = jax.random.normal(key, (2 * m, 3), children.means.dtype)
@@ -245,8 +247,8 @@ def densify(avatar: Avatar, clone, split, key, return_source: bool = False):
         children = dataclasses.replace(
             children, means=children.means + offsets,
             log_scales=children.log_scales - np.log(SPLIT_SCALE_DIVISOR))
-    kept = _take(avatar, np.flatnonzero(~split))
-    grown = _concat(_concat(kept, _take(avatar, np.flatnonzero(clone))), children)
+    kept = take(avatar, np.flatnonzero(~split))
+    grown = concat(concat(kept, take(avatar, np.flatnonzero(clone))), children)
     if not return_source:
         return grown
     parents_index = np.flatnonzero(split)
