@@ -136,3 +136,10 @@ def test_change_counts_every_visible_pixel_of_an_occluded_region_the_edits_borde
     assert metrics.change_scores(ours, untouched, regions, "iris")["iris"] == pytest.approx(
         10 * np.log10(1 / 0.02 ** 2), abs=1e-3)  # the pupil alone, the iris being edited
     assert metrics.change_scores(ours, untouched, regions, "teeth")["teeth"] is None
+
+
+def test_scoring_refuses_a_tile_capacity_that_would_drop_gaussians():
+    from gae_jax.evaluation import score
+
+    with pytest.raises(ValueError, match="tile_capacity must be >= 1"):
+        score.evaluate_avatars(None, None, None, tile_capacity=0)

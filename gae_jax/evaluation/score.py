@@ -18,7 +18,14 @@ from gae_jax.scene import rig as rigs
 from gae_jax.scene.types import Scene, posed_vertices
 
 
+def _check_capacity(tile_capacity: int) -> None:
+    if tile_capacity < 1:  # the rig would clamp it to 1: one Gaussian per tile, a wrong image
+        raise ValueError(f"tile_capacity must be >= 1, got {tile_capacity} (size it with "
+                         "rig.required_capacity or take the edit's rig.tile_capacity)")
+
+
 def _rig(evalset: EvalSet, avatar: Avatar, vertices, tile_capacity: int) -> rigs.Rig:
+    _check_capacity(tile_capacity)
     return rigs.make_rig(evalset.faces, avatar, vertices, evalset.intrinsics, evalset.w2c,
                          evalset.background, evalset.width, evalset.height, tile_capacity)
 
@@ -36,6 +43,7 @@ def evaluate_avatars(evalset: EvalSet, edited: Avatar, original: Avatar, tile_ca
     has `drift`: PSNR against the untouched avatar outside the dilated edit
     (`metrics.drift_scores`), and `change`: the same over each occluded region where the truth
     shows it (`metrics.change_scores`)."""
+    _check_capacity(tile_capacity)
     render = rigs.make_view_renderer(blend)
     clip = clip_score.load_clip(clip_folder) if clip_folder else None
     captions = instructions.captions(evalset.prompt)
