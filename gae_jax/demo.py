@@ -84,7 +84,7 @@ def main(argv=None):
     parser.add_argument("--size", type=int, default=256, help="image width and height")
     parser.add_argument("--per-face", type=int, default=1, help="Gaussians per triangle")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--head", default="procedural", choices=head.HEAD_KINDS,
+    parser.add_argument("--head", default=head.DEFAULT_KIND, choices=head.HEAD_KINDS,
                         help="the built-in head")
     cli.add_compile_cache_flag(parser)
     args = parser.parse_args(argv)

@@ -87,6 +87,9 @@ def run(config: EditConfig, workdir: str, scene=None, original=None, resume: boo
     timings = dict(timings or {})
     t0 = time.perf_counter()
     scene = scene if scene is not None else load_scene(scene_config, progress=progress)
+    if scene.head and not scene_config.data and scene.head != scene_config.head:
+        # A scene passed in: the run folder records the head that posed it (the viewer reads it).
+        scene_config = dataclasses.replace(scene_config, head=scene.head)
     if original is None:
         original = original_avatar(scene, config.reconstruct_iterations, progress)
     session = edit.setup(config, scene, original)

@@ -329,7 +329,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", nargs="?", default="", help="run folder of python -m gae_jax.train")
     p.add_argument("--avatar", default="", help="view a GaussianAvatars folder (point_cloud.ply "
                    "+ flame_param.npz) instead of a run folder")
-    p.add_argument("--head", default="procedural", choices=head.HEAD_KINDS,
+    p.add_argument("--head", default=head.DEFAULT_KIND, choices=head.HEAD_KINDS,
                    help="--avatar: the built-in head it is bound to")
     p.add_argument("--flame-model", default="", help="--avatar: the FLAME file it is bound to")
     p.add_argument("--flame-masks", default="", help="--avatar: FLAME_masks.pkl for its regions")

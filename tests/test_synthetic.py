@@ -116,10 +116,14 @@ def test_the_makehuman_scene_drives_face_units_and_shows_the_tongue_only_when_he
         synthetic.make_synthetic_scene(cache_dir=str(tmp_path), head_kind="robot", size=16)
 
 
-def test_the_scene_config_names_the_heads_and_refuses_a_head_for_user_data(tmp_path):
-    from gae_jax.scene.load import SceneConfig, load_scene
+def test_the_scene_config_names_the_heads_and_the_head_poses_user_data_without_flame():
+    from gae_jax.scene.load import SceneConfig, load_model
 
     with pytest.raises(ValueError, match="--head takes procedural or makehuman"):
         SceneConfig(head="robot")
-    with pytest.raises(ValueError, match="--data brings its own model"):
-        load_scene(SceneConfig(data=str(tmp_path), head="makehuman"))
+    assert SceneConfig().head == head.DEFAULT_KIND == "makehuman"
+    for kind in head.HEAD_KINDS:
+        model, regions = load_model(head_kind=kind)
+        own, assets = head.make_head(kind)
+        np.testing.assert_array_equal(np.asarray(model.faces), np.asarray(own.faces))
+        np.testing.assert_array_equal(regions, assets.face_regions)

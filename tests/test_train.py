@@ -211,6 +211,8 @@ def test_run_writes_a_self_contained_folder_that_evaluate_rescores(base, tmp_pat
                  "edited_avatar/point_cloud.ply", "edited_avatar/flame_param.npz",
                  "original_avatar/point_cloud.ply", "motion.npz"):
         assert (out / name).is_file(), name
+    # the folder records the head of the scene it was given, not the CLI's default head
+    assert scene.head == metrics["scene"]["head"] == "procedural" != SceneConfig().head
     # the viewer reads the folder alone: both avatars, the scene's every sequence and identity
     viewable = source.from_run(str(out))
     assert set(viewable.sequences) == set(scene.sequences)

@@ -54,7 +54,7 @@ def tiny_run_folder(path, num_expr_frames: int = 4):
                             {})
     truth.save(evalset, str(path / truth.FILE_NAME))
     motion_io.save(str(path / motion_io.FILE_NAME), sequences, shapes)
-    metrics = dict(config=dict(EditConfig().__dict__), scene=dict(SceneConfig().__dict__))
+    metrics = dict(config=dict(EditConfig().__dict__), scene=dict(SceneConfig(head="procedural").__dict__))
     (path / "metrics.json").write_text(json.dumps(metrics))
     return path
 

@@ -24,7 +24,9 @@ on a boundary between regions are duplicated, so each region has its own colour 
 Regions: teeth, tongue, sclera / iris / pupil from their parts; on the body: `mouth` where the
 segmentation says mouth cavity, `lips` where the lips mask is set, `hair` above the hairline and
 `brows` in an ellipse over each eye (the base mesh has neither), `skin` elsewhere. Albedo is per
-region (the wheel has masks, no skin colour) with a blush on the cheeks and nose.
+region (the wheel has masks, no skin colour) with a blush on the cheeks and nose; skin, hair and
+brows are painted per vertex by the same hairline and ellipses with a soft edge, so the colour
+follows the curves rather than the quads' outline.
 
 The asset (`np.savez_compressed`) holds FlameModel's fields, face regions and vertex colours,
 the names of the expression and identity directions, and, to check the conversion against the
@@ -220,16 +222,43 @@ def body_regions(centres, normals, label, lips) -> np.ndarray:
     return regions
 
 
-def albedo(regions_of_vertex, metres) -> np.ndarray:
-    """(V, 3) per-region colour (the procedural palette), the skin blushed on cheeks and nose."""
+def smoothstep(edge0: float, edge1: float, x):
+    t = np.clip((x - edge0) / (edge1 - edge0), 0.0, 1.0)
+    return t * t * (3 - 2 * t)
+
+
+def hair_and_brow_paint(decimetres) -> tuple[np.ndarray, np.ndarray]:
+    """(V,) hair and brow coverage in [0, 1] at each vertex, smooth in position: the hairline
+    and the brow ellipses of `body_regions` with a soft edge, so the painted colour follows the
+    curve instead of the quads' outline (the regions stay per quad)."""
+    x, y, z = decimetres.T
+    h = HAIRLINE
+    frac = np.clip((z - h["back_z"]) / (h["front_z"] - h["back_z"]), 0, 1)
+    line = h["back_y"] + (h["front_y"] - h["back_y"]) * frac ** 0.5
+    hair = smoothstep(-0.06, 0.06, y - line)
+    b = BROW
+    ellipse = ((np.abs(x) - b["x"]) / b["half_x"]) ** 2 + ((y - b["y"]) / b["half_y"]) ** 2
+    brow = (1 - smoothstep(0.45, 1.15, ellipse)) * smoothstep(b["min_z"] - 0.05, b["min_z"], z)
+    return hair, brow
+
+
+def albedo(regions_of_vertex, metres, decimetres) -> np.ndarray:
+    """(V, 3) per-region colour (the procedural palette), the skin blushed on cheeks and nose;
+    skin, hair and brows painted by `hair_and_brow_paint` (soft edges that do not follow the
+    quads)."""
     colours = np.asarray([head.ALBEDO.get(r, head.ALBEDO["mouth"]) for r in head.REGIONS])
     out = colours[regions_of_vertex].copy()
     blush = np.zeros(len(metres))
     for centre, sigma in (((0.045, -0.012, 0.08), 0.018), ((-0.045, -0.012, 0.08), 0.018),
                           ((0.0, -0.01, 0.115), 0.012)):
         blush += np.exp(-((metres - centre) ** 2).sum(1) / (2 * sigma ** 2))
-    skin = regions_of_vertex == head.REGION_ID["skin"]
-    out[skin] += np.clip(blush[skin], 0, 1)[:, None] * np.array([0.03, -0.08, -0.06])
+    skin_tone = np.asarray(head.ALBEDO["skin"]) + np.clip(blush, 0, 1)[:, None] * np.array(
+        [0.03, -0.08, -0.06])
+    hair, brow = hair_and_brow_paint(decimetres)
+    painted = skin_tone * (1 - hair[:, None]) + np.asarray(head.ALBEDO["hair"]) * hair[:, None]
+    painted = painted * (1 - brow[:, None]) + np.asarray(head.ALBEDO["brows"]) * brow[:, None]
+    family = np.isin(regions_of_vertex, [head.REGION_ID[r] for r in ("skin", "hair", "brows")])
+    out[family] = painted[family]
     return np.clip(out, 0, 1)
 
 
@@ -317,7 +346,7 @@ def _convert(wheel: zipfile.ZipFile, wheel_path: str) -> dict:
         exprdirs=exprdirs.astype(np.float32), j_regressor=j_regressor.astype(np.float32),
         lbs_weights=weights.astype(np.float32), faces=faces.astype(np.int32),
         face_regions=face_region.astype(np.int32),
-        vertex_colors=albedo(vertex_region, metres).astype(np.float32),
+        vertex_colors=albedo(vertex_region, metres, all_v[take]).astype(np.float32),
         region_names=np.asarray(head.REGIONS), expr_names=np.asarray(EXPRESSIONS),
         shape_names=np.asarray([s.split("/")[1] for s in IDENTITY]),
         source_vertex=all_src[take].astype(np.int32),

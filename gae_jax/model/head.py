@@ -289,6 +289,9 @@ def _eyelid(b: _Builder, side: int):
 
 
 HEAD_KINDS = ("procedural", "makehuman")
+# What the entry points use when no --head is given (the library's own calls default to the
+# procedural head, the fast one for tests).
+DEFAULT_KIND = "makehuman"
 
 
 def make_head(kind: str = "procedural") -> tuple[FlameModel, HeadAssets]:

@@ -20,15 +20,17 @@ from gae_jax.scene import nersemble, synthetic
 from gae_jax.scene.types import Scene
 
 
-def load_model(flame_model: str = "", flame_masks: str = "", data: str = "", dims=None):
-    """(FlameModel, (F,) face regions): the embedded head, or a FLAME file with as many shape /
+def load_model(flame_model: str = "", flame_masks: str = "", data: str = "", dims=None,
+               head_kind: str = "procedural"):
+    """(FlameModel, (F,) face regions): the embedded head `head_kind`, or a FLAME file with as
+    many shape /
     expression components as `dims` = (S, E) says or, without it, as the data's flame_param
     files hold (300 / 100 without either)."""
     if not flame_model:
         if flame_masks:
             raise ValueError("--flame-masks needs --flame-model (the embedded head has its "
                              "own regions)")
-        model, assets = head.make_head()
+        model, assets = head.make_head(head_kind)
         return model, assets.face_regions
     n_shape, n_expr = 300, 100
     params = [] if dims is not None or not data else sorted(
@@ -55,7 +57,7 @@ class SceneConfig:
     flame_model: str = ""
     flame_masks: str = ""
     size: int = 128
-    head: str = "procedural"
+    head: str = head.DEFAULT_KIND
 
     def __post_init__(self):
         if self.size < 8:
@@ -72,8 +74,8 @@ SCENE_HELP = dict(
     flame_masks="FLAME_masks.pkl naming the FLAME model's regions (lips, eyeballs, scalp)",
     size="image size of the embedded scene (pixels; --data keeps its own; a new size builds and "
          "caches a new scene, about a minute at 128 px, and reconstructs its avatar)",
-    head="the embedded scene's head: procedural (a few primitives) or makehuman (the MakeHuman "
-         "base head with the 52 ARKit face units)")
+    head="the embedded head: makehuman (the MakeHuman base head with the 52 ARKit face units) "
+         "or procedural (a few primitives, fast); it also poses --data without --flame-model")
 
 
 def load_scene(source: SceneConfig = SceneConfig(), progress: bool = False) -> Scene:
@@ -85,7 +87,5 @@ def load_scene(source: SceneConfig = SceneConfig(), progress: bool = False) -> S
                              "is posed by the embedded head)")
         return synthetic.make_synthetic_scene(size=source.size, progress=progress,
                                               head_kind=source.head)
-    if source.head != "procedural":
-        raise ValueError("--head chooses the embedded scene's head; --data brings its own model")
-    model, regions = load_model(flame_model, flame_masks, data)
+    model, regions = load_model(flame_model, flame_masks, data, head_kind=source.head)
     return nersemble.load_scene(data, model, regions)

@@ -305,7 +305,7 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
                  width=size, height=size, train_cameras=train, held_out_cameras=held_out,
                  shapes=shapes, vertex_colors=colours, sequences=sequences, images=images,
                  regions=regions, background=bg.astype(np.float32), kind="synthetic",
-                 albedo=albedos, supersample=supersample)
+                 albedo=albedos, supersample=supersample, head=head_kind)
 
 
 def scene_fingerprint(scene: Scene) -> str:

@@ -72,6 +72,7 @@ class Scene:
       kind: "synthetic" (ray-cast, so the ideal edit is known) or "capture" (a user's data).
       albedo: identity name -> (V, 3) unshaded albedo (synthetic scenes only: it defines the
         ideal edit).
+      head: the built-in head that poses it (`head.HEAD_KINDS`), "" for a FLAME file.
       supersample: rays per pixel per axis of a synthetic scene's ground truth (its ideal edit
         is ray-cast the same way).
     """
@@ -93,6 +94,7 @@ class Scene:
     kind: str = "synthetic"
     albedo: Optional[dict] = None
     supersample: int = 1
+    head: str = ""
 
     @property
     def num_cameras(self) -> int:
