@@ -23,9 +23,8 @@ from gae_jax.scene.types import Scene
 def load_model(flame_model: str = "", flame_masks: str = "", data: str = "", dims=None,
                head_kind: str = "procedural"):
     """(FlameModel, (F,) face regions): the embedded head `head_kind`, or a FLAME file with as
-    many shape /
-    expression components as `dims` = (S, E) says or, without it, as the data's flame_param
-    files hold (300 / 100 without either)."""
+    many shape / expression components as `dims` = (S, E) says or, without it, as the data's
+    flame_param files hold (300 / 100 without either)."""
     if not flame_model:
         if flame_masks:
             raise ValueError("--flame-masks needs --flame-model (the embedded head has its "
