@@ -98,6 +98,27 @@ def stripe_on(y: np.ndarray, phase: float = 0.0) -> np.ndarray:
     return np.sin(2 * np.pi * np.asarray(y) / STRIPE_PERIOD + 2 * np.pi * phase) > 0
 
 
+def mode_of(instruction: Instruction, mode: int, modes: int) -> tuple[Instruction, float]:
+    """Answer `mode` (0 .. modes - 1) of a `modes`-modal editor to `instruction`, and its
+    stripes' phase. Stripes keep their colour and shift by mode / modes of a period (the other
+    half of the region at 2 modes); a recolour keeps its region and takes one of `modes` shades
+    of its colour, evenly from dark (mode 0) to light (`colour_shade`)."""
+    if not 0 <= mode < modes:
+        raise ValueError(f"mode must be in [0, {modes}), got {mode}")
+    if instruction.stripes or modes == 1:
+        return instruction, mode / modes
+    shade = colour_shade(instruction.colour, mode / (modes - 1))
+    return dataclasses.replace(instruction, colour=shade), 0.0
+
+
+def colour_shade(colour, lightness: float) -> tuple:
+    """`colour` at `lightness` in [0, 1]: 0 halves it (a dark shade), 1 takes it halfway to
+    white (a light one), linear in between (0.5: the mean of the two, near the colour)."""
+    c = np.asarray(colour, np.float64)
+    dark, light = 0.5 * c, c + 0.5 * (1.0 - c)
+    return tuple(float(v) for v in (1.0 - lightness) * dark + lightness * light)
+
+
 def region_vertices(faces: np.ndarray, face_regions: np.ndarray, region: str,
                     num_vertices: int) -> np.ndarray:
     """(V,) bool: vertices at least half of whose faces belong to `region` (none if unused)."""

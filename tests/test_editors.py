@@ -172,10 +172,32 @@ def test_multimodal_editor_puts_the_stripes_on_either_half_by_its_key():
     again = make_editor("semantic", modes=1).edit(image, image, "add green stripes to the lips",
                                                   jax.random.PRNGKey(0), context)
     np.testing.assert_array_equal(one, again)
-    with pytest.raises(ValueError, match="needs a stripe instruction"):
-        editor.edit(image, image, "turn the lips blue", jax.random.PRNGKey(0), context)
     with pytest.raises(ValueError, match="modes must be"):
         make_editor("semantic", modes=0)
+
+
+def test_multimodal_recolour_picks_a_dark_or_a_light_shade_by_its_key():
+    image, regions, shade = toy_render()
+    lips = regions == LIPS
+    blue = np.array(instructions.COLOURS["blue"])
+    shades = {0: 0.5 * blue, 1: blue + 0.5 * (1 - blue)}  # dark: half; light: halfway to white
+    editor = make_editor("semantic", modes=2)
+    seen = set()
+    for k in range(10):
+        key = jax.random.PRNGKey(k)
+        out = editor.edit(image, image, "turn the lips blue", key, dict(regions=regions))
+        mode = editor.mode(key)
+        seen.add(mode)
+        expected = shades[mode][None, :] * shade[lips][:, None]  # the lips' shading kept
+        np.testing.assert_allclose(out[lips], expected, rtol=1e-5, atol=1e-6)
+        np.testing.assert_array_equal(out[~lips], image[~lips])
+    assert seen == {0, 1}
+    three = instructions.mode_of(instructions.parse("turn the lips blue"), 1, 3)[0].colour
+    np.testing.assert_allclose(three, (shades[0] + shades[1]) / 2)  # the middle shade
+    stripes = instructions.parse("add green stripes to the lips")
+    assert instructions.mode_of(stripes, 1, 4) == (stripes, 0.25)
+    with pytest.raises(ValueError, match="mode must be"):
+        instructions.mode_of(stripes, 2, 2)
 
 
 def test_ideal_of_the_other_mode_stripes_the_other_half_of_the_region():

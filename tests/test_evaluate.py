@@ -76,6 +76,25 @@ def test_temporal_clips_are_consecutive_frames_at_one_camera(tmp_path):
         protocols.temporal_frames(scene, "nope")
 
 
+def test_ideal_of_a_colour_mode_paints_the_region_that_shade_and_nothing_else(tmp_path):
+    from gae_jax import instructions
+    from gae_jax.evaluation import truth
+
+    scene = synthetic.make_synthetic_scene(size=16, num_cameras=4, frames_per_sequence=3,
+                                           supersample=1, progress=False,
+                                           cache_dir=str(tmp_path))
+    lips = instructions.region_vertices(scene.model.faces, scene.face_regions, "lips",
+                                        len(scene.albedo["A"]))
+    blue = np.array(instructions.COLOURS["blue"])
+    for mode, colour in ((0, 0.5 * blue), (1, 0.5 + 0.5 * blue)):
+        instruction, albedo = truth.ideal_albedo(scene, "turn the lips blue", mode, 2)
+        np.testing.assert_allclose(albedo[lips], np.broadcast_to(colour, albedo[lips].shape))
+        np.testing.assert_array_equal(albedo[~lips], scene.albedo["A"][~lips])
+        assert instruction.region == "lips"
+    _, single = truth.ideal_albedo(scene, "turn the lips blue")
+    np.testing.assert_allclose(single[lips], np.broadcast_to(blue, single[lips].shape))
+
+
 def test_evaluate_cli_refuses_a_folder_that_is_not_a_run(tmp_path, capsys):
     assert evaluate.main([str(tmp_path)]) == 2
     assert "metrics.json not found" in capsys.readouterr().err

@@ -261,6 +261,32 @@ def test_learning_rates_decay_to_their_final_fraction_and_stay():
     np.testing.assert_allclose(moves, expected, rtol=1e-4)
 
 
+def test_sgd_moves_in_proportion_to_the_gradient_with_heavy_ball_momentum():
+    config = edit_config.StepConfig.of(edit_config.preset(
+        "fast", optimizer="sgd", lr=2.0, lr_geometry=0.5, lr_means=0.25, lr_final=1.0))
+    opt = step_module.avatar_optimizer(config)
+    params = {k: np.zeros((2, 3), np.float32) for k in ("means", "quats", "log_scales",
+                                                          "colors")}
+    params["opacity_logits"] = np.zeros((2,), np.float32)
+    state = opt.init(params)
+    # Two Gaussians, the second's gradient a tenth of the first's (a WABE weight of 0.1).
+    scale = np.array([1.0, 0.1], np.float32)
+    grad_at = [1e-3, -2e-3, 5e-4]
+    velocity, colors_moves, means_moves = np.zeros(2), [], []
+    for g in grad_at:
+        grads = {k: np.ones_like(v) * g * scale.reshape((2,) + (1,) * (v.ndim - 1))
+                 for k, v in params.items()}
+        with jax.numpy_dtype_promotion("standard"):
+            updates, state = opt.update(grads, state, params)
+        colors_moves.append(np.asarray(updates["colors"][:, 0]))
+        means_moves.append(np.asarray(updates["means"][:, 0]))
+        velocity = step_module.SGD_MOMENTUM * velocity + g * scale
+        np.testing.assert_allclose(colors_moves[-1], -2.0 * velocity, rtol=1e-5)
+        np.testing.assert_allclose(means_moves[-1], -0.25 * velocity, rtol=1e-5)
+    # Unlike Adam, the weighted Gaussian moves a tenth as far.
+    np.testing.assert_allclose(colors_moves[-1][1] / colors_moves[-1][0], 0.1, rtol=1e-5)
+
+
 def test_edit_loss_weighs_one_minus_ssim_beside_l1_as_configured(base):
     from tests.test_losses import naive_ssim
 

@@ -21,7 +21,8 @@ from gae_jax.render import wabe
 
 
 CHOICES = dict(editor=("semantic", "style", "ip2p"), editor_keeps=("render", "original"),
-               blend=wabe.MODES, pair_mode=gan.PAIR_MODES, gradient_mask=("none", "code"))
+               blend=wabe.MODES, pair_mode=gan.PAIR_MODES, gradient_mask=("none", "code"),
+               optimizer=("adam", "sgd"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,6 +64,7 @@ class EditConfig:
     lr_final: float = 0.1
     lr_decay_steps: int = 100
     adam_eps: float = 1e-8
+    optimizer: str = "adam"
     d_lr: float = 1e-4
     reconstruct_iterations: int = 600
     checkpoint_every: int = 50
@@ -108,8 +110,9 @@ HELP = {
                     "image it edits) or original (the unedited image it is conditioned on)",
     "editor_bleed": "px the semantic editor's edit spills across the region's outline (3x "
                     "into what the region occludes: teeth behind lips), as diffusion edits do",
-    "editor_modes": "stripe phases the semantic editor picks from per call (2: the stripes land "
-                    "on either half of the region, a multimodal inconsistency; stripe prompts)",
+    "editor_modes": "answers the semantic editor picks from per call, a multimodal "
+                    "inconsistency: stripe phases (2: the stripes land on either half of the "
+                    "region) or, for a recolour, shades of the colour from dark to light",
     "ip2p_folder": "local diffusers InstructPix2Pix folder (editor ip2p)",
     "clip_folder": "local CLIP folder for CLIP-S / CLIP-C in metrics.json (skipped if empty)",
     "iterations": "edit iterations",
@@ -140,6 +143,8 @@ HELP = {
                 "lr_decay_steps iterations, then stays there (1: constant)",
     "lr_decay_steps": "iterations of the learning-rate decay (see lr_final)",
     "adam_eps": "Adam epsilon: gradients well below it barely move a parameter",
+    "optimizer": "avatar optimiser: adam, or sgd (momentum 0.9: a step proportional to the "
+                 "gradient, so WABE's weights scale the moves; set the rates for it)",
     "d_lr": "discriminator Adam learning rate",
     "reconstruct_iterations": "steps of the original avatar's reconstruction when no --avatar "
                               "is given (600: teeth 19.7 dB, whole 34.9 against the truth, "
@@ -193,6 +198,7 @@ class StepConfig:
     lr_final: float
     lr_decay_steps: int
     adam_eps: float
+    optimizer: str
     d_lr: float
 
     @classmethod

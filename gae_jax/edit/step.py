@@ -25,6 +25,7 @@ from gae_jax.util.compile import fast_jit
 
 MOUTH_REGIONS = ("teeth", "mouth")  # excluded from the released code's gradient mask
 CODE_MASK_CONTRIBUTORS = 10
+SGD_MOMENTUM = 0.9
 
 
 @jax.tree_util.register_dataclass
@@ -40,10 +41,11 @@ class EditState:
 
 
 def avatar_optimizer(config: StepConfig) -> optax.GradientTransformation:
-    """Adam at `lr` for colours, `lr_geometry` for opacities, scales and rotations, `lr_means`
-    for local positions (the paper: 1e-2 for everything), each decaying exponentially to
-    `lr_final` of itself over `lr_decay_steps` and constant after (a schedule that does not
-    depend on the run's length, so an extended run equals a longer one)."""
+    """Adam (or SGD with momentum 0.9, `optimizer="sgd"`) at `lr` for colours, `lr_geometry` for
+    opacities, scales and rotations, `lr_means` for local positions (the paper: Adam at 1e-2 for
+    everything), each decaying exponentially to `lr_final` of itself over `lr_decay_steps` and
+    constant after (a schedule that does not depend on the run's length, so an extended run
+    equals a longer one)."""
     rates = {k: config.lr_geometry for k in TRAINABLE}
     rates.update(colors=config.lr, means=config.lr_means)
 
@@ -53,8 +55,12 @@ def avatar_optimizer(config: StepConfig) -> optax.GradientTransformation:
         return optax.exponential_decay(value, config.lr_decay_steps, config.lr_final,
                                        end_value=value * config.lr_final)
 
-    return optax.partition({k: optax.adam(rate(v), eps=config.adam_eps)
-                            for k, v in rates.items()}, {k: k for k in TRAINABLE})
+    def one(value):
+        if config.optimizer == "sgd":
+            return optax.sgd(rate(value), momentum=SGD_MOMENTUM)
+        return optax.adam(rate(value), eps=config.adam_eps)
+
+    return optax.partition({k: one(v) for k, v in rates.items()}, {k: k for k in TRAINABLE})
 
 
 def discriminator_optimizer(config: StepConfig) -> optax.GradientTransformation:

@@ -62,14 +62,15 @@ class EvalSet:
     protocols: dict
 
 
-def ideal_albedo(scene: Scene, prompt: str, phase: float = 0.0):
-    """(instruction or None, (V, 3) albedo of the ideal edit of identity A; `phase`: of stripes,
-    the mode of a multimodal editor). A prompt outside the semantic vocabulary (a style) has no
-    ideal: None and the unedited albedo."""
+def ideal_albedo(scene: Scene, prompt: str, mode: int = 0, modes: int = 1):
+    """(instruction or None, (V, 3) albedo of the ideal edit of identity A; `mode` of `modes`:
+    the answer of a multimodal editor, `instructions.mode_of`). A prompt outside the semantic
+    vocabulary (a style) has no ideal: None and the unedited albedo."""
     try:
         instruction = instructions.parse(prompt)
     except ValueError:
         return None, scene.albedo["A"]
+    instruction, phase = instructions.mode_of(instruction, mode, modes)
     return instruction, instructions.ideal_albedo(instruction, scene.albedo["A"],
                                                   scene.model.faces, scene.face_regions,
                                                   scene.model.v_template, phase)
@@ -97,11 +98,11 @@ def frames_truth(scene: Scene, protocol: protocols.ProtocolFrames, albedo) -> Ev
                       truth, labels)
 
 
-def build(scene: Scene, prompt: str, frames: int = 4, phase: float = 0.0) -> EvalSet:
-    """The EvalSet of an edit with `prompt` on `scene` (`frames` pairs per protocol; `phase`:
-    the stripes' of the ideal, see `instructions.stripe_on`)."""
+def build(scene: Scene, prompt: str, frames: int = 4, mode: int = 0, modes: int = 1) -> EvalSet:
+    """The EvalSet of an edit with `prompt` on `scene` (`frames` pairs per protocol; the ideal
+    of answer `mode` of a `modes`-modal editor, `instructions.mode_of`)."""
     if scene.kind == "synthetic":
-        instruction, albedo = ideal_albedo(scene, prompt, phase)
+        instruction, albedo = ideal_albedo(scene, prompt, mode, modes)
         kind = "ideal edit" if instruction else "unedited truth (style: no ideal)"
     else:
         try:

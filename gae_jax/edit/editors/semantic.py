@@ -29,11 +29,11 @@ shows them. This is the leak WABE is meant to stop: the ideal edit never recolou
 Spilled pixels keep their own shading (luminance over their own region's albedo).
 
 `modes` (default 1) makes the editor multimodal, as a diffusion editor is when several answers
-fit a prompt: each call picks one of `modes` equally likely stripe phases (m / modes of a
-period, m drawn from the key), so two calls on the same view may put the stripes on opposite
-halves of the region. Averaging such edits blurs the stripes into a mean colour; the ideal of
-mode m is `instructions.ideal_albedo(..., phase=m / modes)`. Only stripe instructions have
-modes.
+fit a prompt: each call picks one of `modes` equally likely answers (m drawn from the key,
+`instructions.mode_of`): stripes shifted by m / modes of a period, so two calls on the same view
+may put the stripes on opposite halves of the region; a recolour in one of `modes` shades of
+its colour, dark to light. Averaging such edits blurs them into a mean; the ideal of mode m is
+`evaluation.truth.build(..., mode=m, modes=modes)`.
 
 `instructions.ideal_albedo` applies the same instruction without noise to the mesh's vertex
 albedo: its ray-cast render (`evaluation.truth`) is the ground truth of the edit.
@@ -47,7 +47,7 @@ import jax
 import numpy as np
 
 from gae_jax.edit.editors.base import as_image
-from gae_jax.instructions import parse, stripe_on
+from gae_jax.instructions import mode_of, parse, stripe_on
 from gae_jax.model import head
 
 LUMA = np.array([0.299, 0.587, 0.114], np.float32)
@@ -66,7 +66,7 @@ class SemanticEditor:
     albedo: dict = dataclasses.field(default_factory=lambda: dict(head.ALBEDO))
     keeps: str = "render"  # outside the edit: "render" (the image edited) or "original"
     bleed: int = 0  # px the edit spills across the region's outline (3x into what it occludes)
-    modes: int = 1  # stripe phases a call picks from (1: always the same stripes)
+    modes: int = 1  # answers a call picks from (stripe phases or shades; 1: always the same)
 
     def __post_init__(self):
         if not 0.0 <= self.noise <= 1.0:
@@ -80,7 +80,7 @@ class SemanticEditor:
             raise ValueError(f"keeps must be one of {KEEPS}, got {self.keeps!r}")
 
     def edit(self, render, original, prompt: str, key, context: dict | None = None):
-        instruction = parse(prompt)
+        instruction, phase = mode_of(parse(prompt), self.mode(key), self.modes)
         image = as_image(render, "render")
         source = as_image(original, "original")
         if source.shape != image.shape:
@@ -97,11 +97,7 @@ class SemanticEditor:
             if "canonical" not in context:
                 raise ValueError("stripes need context['canonical'], (H, W, 3) head-space "
                                  "positions of the render")
-            phase = self.mode(key) / self.modes
             mask &= stripe_on(np.asarray(context["canonical"])[..., 1], phase)
-        elif self.modes > 1:
-            raise ValueError(f"a multimodal editor (modes {self.modes}) needs a stripe "
-                             f"instruction, got {prompt!r}")
         keys = jax.random.split(key, 7)
         colour = np.asarray(instruction.colour, np.float32)
         if self.noise > 0:
