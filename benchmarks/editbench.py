@@ -5,8 +5,9 @@ Runs `edit.edit_avatar` + `score.evaluate_avatars` for many `EditConfig`s in one
     each distinct step compiles once;
   * the evaluation sets (ray-cast ideal frames) are cached per (scene, prompt);
   * results go to a JSON file after every variant (atomic write) and a rerun skips variants already
-    there with the same EditConfig and renderer filter, so an interrupted study resumes where it
-    stopped and a changed default is re-run, not read back.
+    there with the same EditConfig, renderer filter and scenes (edited on, scored on), so an
+    interrupted study resumes where it stopped and a changed default or head is re-run, not read
+    back.
 """
 
 from __future__ import annotations
@@ -61,8 +62,10 @@ class Bench:
         `on_edited(avatar)` sees the edited avatar; `editor` replaces the config's 2D editor
         (the oracle); `eval_scene` is scored instead of `scene` (a scenario that edits on part
         of a scene's training split and is scored on all of it)."""
+        scenes = dict(edited_on=scene_fingerprint(scene),
+                      scored_on=scene_fingerprint(eval_scene or scene))
         recorded = self.results.get(name)
-        if recorded is not None and same_settings(recorded, config):
+        if recorded is not None and same_settings(recorded, config, scenes):
             return recorded
         session, fresh = self.session(config, scene, original)
         start = time.perf_counter()
@@ -75,6 +78,7 @@ class Bench:
         record = dict(config=dataclasses.asdict(config), edit_seconds=round(seconds, 1),
                       compiled_in_this_run=fresh, finite=finite, gaussians=int(edited.num),
                       tile_capacity=session.rig.tile_capacity, renderer=renderer_settings(),
+                      scenes=scenes,
                       final_losses=history[-1] if history else {}, **(extra or {}))
         if evaluate and finite:
             t = time.perf_counter()
@@ -100,21 +104,24 @@ def renderer_settings() -> dict:
     return dict(cov2d_dilation=projection.COV2D_DILATION)
 
 
-def same_settings(record: dict, config: EditConfig) -> bool:
-    """Whether `record` was made with `config` (fields it predates at their defaults) and this
-    renderer."""
+def same_settings(record: dict, config: EditConfig, scenes: dict | None = None) -> bool:
+    """Whether `record` was made with `config` (fields it predates at their defaults), this
+    renderer and, when given, the scenes {"edited_on", "scored_on": fingerprint} (a record
+    that predates them matches none)."""
     saved = loop.with_defaults(record.get("config", {}), EditConfig)
     return (saved == _jsonable(dataclasses.asdict(config))
-            and record.get("renderer") == renderer_settings())
+            and record.get("renderer") == renderer_settings()
+            and (scenes is None or record.get("scenes") == scenes))
 
 
-def default_scene_and_avatar():
-    """The README's default scene (128 px) and its cached original avatar."""
+def default_scene_and_avatar(head: str = "procedural"):
+    """The 128 px scene of `head` ("procedural", the library's default, or "makehuman", the
+    CLI's) and its cached original avatar (the default job's reconstruction)."""
     from gae_jax.edit.config import preset
     from gae_jax.scene import synthetic
     from gae_jax.train import original_avatar
 
-    scene = synthetic.make_synthetic_scene(size=128, progress=False)
+    scene = synthetic.make_synthetic_scene(size=128, progress=False, head_kind=head)
     return scene, original_avatar(scene, preset("fast").reconstruct_iterations, progress=False)
 
 
