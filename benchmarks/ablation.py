@@ -1,7 +1,11 @@
 """The paper's Table 1 on our scene: methods x protocols, for occlusion and style edits.
 
-    python benchmarks/ablation.py [--iterations 100] [--out benchmarks/results/ablation]
-                                  [--clip-folder DIR] [--rows in2n wabe_grad ...]
+    python benchmarks/ablation.py [--head makehuman] [--iterations 100]
+                                  [--out benchmarks/results/ablation] [--clip-folder DIR]
+                                  [--rows in2n wabe_grad ...]
+
+On the 128 px scene of `--head` (the shipped MakeHuman head by default) and its default
+reconstruction.
 
 Rows (presets of `edit.config.PRESETS`, all at the same iteration count so time is comparable):
   in2n       Instruct-NeRF2NeRF: standard blending, no GAN, iterative dataset update, no region
@@ -33,15 +37,15 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from editbench import Bench, fmt, mean_over_protocols, write_report  # noqa: E402
+from editbench import Bench, default_scene_and_avatar, fmt, mean_over_protocols  # noqa: E402
+from editbench import write_report  # noqa: E402
 from editbench import score_of as score  # noqa: E402
 from oracle import OracleEditor  # noqa: E402
 
 from gae_jax.edit.config import preset  # noqa: E402
 from gae_jax.evaluation import protocols  # noqa: E402
-from gae_jax.scene import synthetic  # noqa: E402
+from gae_jax.model import head  # noqa: E402
 from gae_jax.scene.types import training_frames  # noqa: E402
-from gae_jax.train import original_avatar  # noqa: E402
 
 ROWS = ("in2n", "previous", "no_region", "wabe_grad", "ssim", "no_adv", "paper", "code", "oracle",
         "fast")
@@ -134,6 +138,7 @@ def summary(results: dict, edits: list) -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--head", choices=head.HEAD_KINDS, default=head.DEFAULT_KIND)
     p.add_argument("--iterations", type=int, default=100)
     p.add_argument("--rows", nargs="+", default=list(ROWS), choices=ROWS)
     p.add_argument("--edits", nargs="+", default=[e[0] for e in EDITS if e[0] != "eyes_noisy"],
@@ -145,8 +150,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     bench = Bench(args.out + ".json", clip_folder=args.clip_folder)
-    scene = synthetic.make_synthetic_scene(size=128, progress=False)
-    original = original_avatar(scene, preset("fast").reconstruct_iterations, progress=False)
+    scene, original = default_scene_and_avatar(args.head)
     for row in args.rows:  # one row's edits share a compiled step
         for edit, prompt, editor, noise in EDITS:
             if edit not in args.edits:
@@ -170,8 +174,9 @@ def main(argv=None) -> int:
                                     editor_noise=noise, checkpoint_every=0, **decay)
                     bench.run(variant_name(row, edit), config, scene, original,
                               extra=dict(row=row, edit=edit))
-    bench.save(iterations=args.iterations)
-    sections = [f"# Ablation ({args.iterations} edit iterations, 128 px default scene)\n",
+    bench.save(iterations=args.iterations, head=args.head)
+    sections = [f"# Ablation ({args.iterations} edit iterations, 128 px scene, {args.head} "
+                f"head)\n", f"Command: `python benchmarks/ablation.py --head {args.head}`.\n",
                 "NV novel view, SR self-reenactment, CR cross-identity; PSNR (dB) against the "
                 "ideal edit; LPIPS and flicker averaged over the protocols; s = edit seconds "
                 "(incl. compilation when a row's step is new).\n"]
