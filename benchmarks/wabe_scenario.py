@@ -52,8 +52,9 @@ PROMPT = "turn the lips blue"
 # median 1.1e-5 to 1.3e-5 (geometry's 90th percentiles 5e-6 to 9e-5): Adam's eps at that scale.
 GRADIENT_EPS = 1e-4
 # Adam's rates (1e-1 colours, 1e-3 geometry, 1e-4 positions) x 1000, the best of a probe on the
-# row none/standard (lips 17.7 / 23.8 / 21.4 dB at x 100 / 1000 / 10000, whole 32.3 / 30.8 /
-# 22.6: at 10000 the geometry runs away).
+# row none/standard by its scores against the ideal (an oracle choice of the control's step
+# size; lips 17.7 / 23.8 / 21.4 dB at x 100 / 1000 / 10000, whole 32.3 / 30.8 / 22.6: at 10000
+# the geometry runs away).
 SGD_RATES = dict(optimizer="sgd", lr=100.0, lr_geometry=1.0, lr_means=0.1)
 METHODS = {"standard": dict(blend="standard"), "wabe_grad": dict(blend="wabe_grad"),
            "wabe": dict(blend="wabe"), "code_mask": dict(gradient_mask="code")}
