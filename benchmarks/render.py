@@ -1,10 +1,12 @@
 """Renderer speed and memory: forward and forward+backward on the specified random scene.
 
     python benchmarks/render.py [--configs 2000x128 50000x256 50000x512] [--repeats 7]
+                                [--kernels auto jax] [--no-reference]
 
 Prints one JSON object per configuration (and a summary list at the end): median (and minimum)
 milliseconds after warm-up with the C++ compositor (`gae_jax.render.cpu_kernel`, the default on
-CPU) and, in the same process, with the pure-JAX one (`jax_*`, `kernel_speedup_*`), (pixel,
+CPU) and, in the same process, with the pure-JAX one (`jax_*`, `kernel_speedup_*`; skipped with
+`--kernels auto`, as `benchmarks/render_scaling.py` does), (pixel,
 Gaussian) pair evaluations per second against the exp bound (cores / numpy's time per float32
 exp, measured in the same process), overflowed tiles, tile capacity and peak RSS, and the same
 scene timed in the same process with `benchmarks/tile_reference.py` (a
@@ -70,7 +72,7 @@ def reference_ms(g, camera, weights) -> tuple:
 
 
 def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
-            options: str, reference: bool) -> dict:
+            options: str, reference: bool, kernels=KERNELS) -> dict:
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -100,8 +102,8 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
             times.append(time.perf_counter() - start)
         return 1e3 * float(np.median(times)), 1e3 * float(np.min(times))
 
-    timed = {}
-    for kernel in KERNELS:
+    timed = {"jax": (None,) * 4}
+    for kernel in kernels:
         def image(g, kernel=kernel):
             return splat.render(g, camera, blend=blend, tile_capacity=capacity, unroll=unroll,
                                 kernel=kernel)
@@ -117,8 +119,8 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
     packed = jnp.concatenate([p.means2d, p.conics, p.opacities[:, None], p.depths[:, None],
                               jnp.asarray(g.colors)], axis=-1)
     packed = jnp.where(p.visible[:, None], packed, 0.0)
-    composite_ms = {}
-    for kernel in KERNELS:
+    composite_ms = {"jax": None}
+    for kernel in kernels:
         cfg = comp.CompositeConfig(blend=blend, alpha_clamp=0.99, tiles_x=bins.tiles_x,
                                    tiles_y=bins.tiles_y, unroll=unroll, kernel=kernel)
         only = jax.jit(lambda x, cfg=cfg: comp.composite(cfg, bins.table, bins.kept, x)[0],
@@ -147,14 +149,15 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
         forward_ms=round(fwd_ms, 2), forward_backward_ms=round(fwd_bwd_ms, 2),
         forward_min_ms=round(fwd_min, 2), forward_backward_min_ms=round(fwd_bwd_min, 2),
         kernel=cpu_kernel.available(),
-        jax_forward_ms=round(jax_fwd_ms, 2), jax_forward_backward_ms=round(jax_fwd_bwd_ms, 2),
-        kernel_speedup_forward=round(jax_fwd_min / fwd_min, 2),
-        kernel_speedup_forward_backward=round(jax_fwd_bwd_min / fwd_bwd_min, 2),
+        **({} if jax_fwd_ms is None else dict(
+            jax_forward_ms=round(jax_fwd_ms, 2), jax_forward_backward_ms=round(jax_fwd_bwd_ms, 2),
+            kernel_speedup_forward=round(jax_fwd_min / fwd_min, 2),
+            kernel_speedup_forward_backward=round(jax_fwd_bwd_min / fwd_bwd_min, 2),
+            jax_composite_min_ms=round(composite_ms["jax"], 2))),
         tile_pairs_per_s_forward=round(pairs / (fwd_ms * 1e-3)),
         walked_pairs_per_s_forward=round(walked / (fwd_ms * 1e-3)),
         exp_bound_per_s=round(cores / (numpy_exp_ns * 1e-9)),
-        composite_min_ms=round(composite_ms["auto"], 2),
-        jax_composite_min_ms=round(composite_ms["jax"], 2),
+        composite_min_ms=round(composite_ms["auto"], 2), walked_pairs=walked,
         composite_share_of_exp_bound=round(
             walked / (composite_ms["auto"] * 1e-3) / (cores / (numpy_exp_ns * 1e-9)), 3),
         forward_share_of_exp_bound=round(walked / (fwd_ms * 1e-3) / (cores / (numpy_exp_ns * 1e-9)),
@@ -182,19 +185,23 @@ def main(argv=None):
                              "Both run, interleaved per configuration, by default.")
     parser.add_argument("--no-reference", action="store_true",
                         help="skip timing benchmarks/tile_reference.py (torch) in the same process")
+    parser.add_argument("--kernels", nargs="+", default=list(KERNELS), choices=KERNELS,
+                        help="compositors timed: auto (the C++ kernel where built) and jax")
     parser.add_argument("--one", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.one:
         num, size = (int(v) for v in args.one.split("x"))
         print(json.dumps(run_one(num, size, args.repeats, args.blend, args.unroll,
-                                 args.options[0], not args.no_reference)))
+                                 args.options[0], not args.no_reference,
+                                 tuple(["auto"] + [k for k in args.kernels if k != "auto"]))))
         return
     results = []
     for config in args.configs:
         for options in args.options:
             cmd = [sys.executable, os.path.abspath(__file__), "--one", config, "--repeats",
                    str(args.repeats), "--blend", args.blend, "--unroll", str(args.unroll),
-                   "--options", options] + (["--no-reference"] if args.no_reference else [])
+                   "--options", options, "--kernels", *args.kernels] + (
+                       ["--no-reference"] if args.no_reference else [])
             line = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
             result = json.loads(line.strip().splitlines()[-1])
             result["options"] = options
