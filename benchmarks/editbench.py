@@ -165,6 +165,13 @@ def score_of(record: dict, protocol: str, metric: str, region: str, who: str = "
     return ev[protocol][who].get(metric, {}).get(region)
 
 
+def paired_change(ours: list, control: list) -> tuple[list, float]:
+    """Per-seed changes ours - control (lists in seed order) and the larger of the two lists'
+    ranges: the run-to-run spread a study sets the mean change against."""
+    changes = [a - b for a, b in zip(ours, control)]
+    return changes, max(max(ours) - min(ours), max(control) - min(control))
+
+
 def mean_over_protocols(record: dict, metric: str, region: str, who: str = "ours"):
     values = [score_of(record, p, metric, region, who) for p in protocols.PROTOCOLS]
     values = [v for v in values if v is not None]

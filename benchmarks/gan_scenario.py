@@ -39,7 +39,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import numpy as np  # noqa: E402
 
-from editbench import Bench, default_scene_and_avatar, fmt  # noqa: E402
+from editbench import Bench, default_scene_and_avatar, fmt, paired_change  # noqa: E402
 from editbench import save_figure, write_report  # noqa: E402
 
 from gae_jax.edit.config import EditConfig  # noqa: E402
@@ -103,26 +103,29 @@ def mode_scores(edited, evalsets: list, tile_capacity: int, blend, region: str =
     return out
 
 
+def adversarial(weight: float) -> dict:
+    """EditConfig overrides for adversarial weight `weight` (lambda_2 = lambda_3; 0: GAN off)."""
+    return dict(adversarial=False) if weight == 0 else dict(d_weight=weight, g_weight=weight)
+
+
 def rows(weights, seeds) -> dict:
     """{row name: EditConfig field overrides}."""
     out = {}
     for seed in seeds:
         for w in weights:
-            gan = dict(adversarial=False) if w == 0 else dict(d_weight=w, g_weight=w)
-            out[f"modes2/w{w:g}/seed{seed}"] = dict(editor_modes=MODES, seed=seed, **gan)
+            out[f"modes2/w{w:g}/seed{seed}"] = dict(editor_modes=MODES, seed=seed,
+                                                   **adversarial(w))
     out["modes1/w0/seed0"] = dict(adversarial=False)
     out["modes1/w0.01/seed0"] = dict()
     for seed in seeds:
         for w in weights:
-            gan = dict(adversarial=False) if w == 0 else dict(d_weight=w, g_weight=w)
             out[f"colour2/w{w:g}/seed{seed}"] = dict(prompt=COLOUR_PROMPT, editor_modes=MODES,
-                                                    seed=seed, **gan)
+                                                    seed=seed, **adversarial(w))
     for seed in seeds:
         for w in LONG_WEIGHTS:
-            gan = dict(adversarial=False) if w == 0 else dict(d_weight=w, g_weight=w)
             out[f"modes2/w{w:g}/seed{seed}/it{LONG_ITERATIONS}"] = dict(
                 editor_modes=MODES, seed=seed, iterations=LONG_ITERATIONS,
-                lr_decay_steps=LONG_ITERATIONS, **gan)
+                lr_decay_steps=LONG_ITERATIONS, **adversarial(w))
         out[f"modes2/w0.1/seed{seed}/dlr{FAST_D_LR:g}"] = dict(
             editor_modes=MODES, seed=seed, d_weight=0.1, g_weight=0.1, d_lr=FAST_D_LR)
     return out
@@ -162,13 +165,12 @@ def summary_lines(results: dict, weights, seeds) -> list:
         for field, digits in (("psnr_best", 2), ("lpips_best", 3)):
             ours = [mean(r, field) for r in recs]
             control = [mean(r, field) for r in base]
-            change = [a - b for a, b in zip(ours, control)]
+            change, spread = paired_change(ours, control)
             centre = f"{np.mean(ours):.{digits}f}"
             if field == "psnr_best":
                 centre += f" ({min(ours):.2f}-{max(ours):.2f})"
             paired, ratio = "-", "-"
             if names != off:
-                spread = max(max(ours) - min(ours), max(control) - min(control))
                 paired = (f"{np.mean(change):+.{digits}f} ("
                           + " / ".join(f"{c:+.{digits}f}" for c in change) + ")")
                 ratio = f"{abs(np.mean(change)) / max(spread, 1e-6):.1f}"
@@ -185,6 +187,15 @@ def mean(record: dict, field: str):
     values = [record["modes"][p][field] for p in protocols.PROTOCOLS if p in record["modes"]]
     values = [v for v in values if v is not None]
     return round(float(np.mean(values)), 3) if values else None
+
+
+def chart_tables(results: dict, weights, seeds) -> dict:
+    """`chart`'s input: {scenario: [(weight, {field: per-seed values})]} of the 100-iteration
+    two-mode rows."""
+    fields = ("psnr_best", "psnr_mean_of_modes", "sharpness", "lpips_best")
+    return {scenario: [(w, {f: [mean(results[f"{scenario}/w{w:g}/seed{s}"], f) for s in seeds]
+                            for f in fields}) for w in weights]
+            for scenario in ("modes2", "colour2")}
 
 
 def chart(tables: dict, path: str) -> None:
@@ -281,11 +292,7 @@ def main():
                      f"{fmt(mean(scores, 'psnr_mean_of_modes'))} | "
                      f"{fmt(mean(scores, 'lpips_best'), 3)} | {fmt(mean(scores, 'sharpness'))}"
                      " | - | - |")
-    tables = {scenario: [(w, {f: [mean(bench.results[f"{scenario}/w{w:g}/seed{s}"], f)
-                                  for s in args.seeds]
-                              for f in ("psnr_best", "psnr_mean_of_modes", "sharpness",
-                                        "lpips_best")})
-                         for w in args.weights] for scenario in ("modes2", "colour2")}
+    tables = chart_tables(bench.results, args.weights, args.seeds)
     lines += summary_lines(bench.results, args.weights, args.seeds)
     bench.save(iterations=args.iterations, head=args.head)
     write_report(args.out + ".md", "\n".join(lines) + "\n")

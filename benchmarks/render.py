@@ -1,12 +1,12 @@
 """Renderer speed and memory: forward and forward+backward on the specified random scene.
 
     python benchmarks/render.py [--configs 2000x128 50000x256 50000x512] [--repeats 7]
-                                [--kernels auto jax] [--no-reference]
+                                [--no-jax] [--no-reference]
 
 Prints one JSON object per configuration (and a summary list at the end): median (and minimum)
 milliseconds after warm-up with the C++ compositor (`gae_jax.render.cpu_kernel`, the default on
 CPU) and, in the same process, with the pure-JAX one (`jax_*`, `kernel_speedup_*`; skipped with
-`--kernels auto`, as `benchmarks/render_scaling.py` does), (pixel,
+`--no-jax`, as `benchmarks/render_scaling.py` does), (pixel,
 Gaussian) pair evaluations per second against the exp bound (cores / numpy's time per float32
 exp, measured in the same process), overflowed tiles, tile capacity and peak RSS, and the same
 scene timed in the same process with `benchmarks/tile_reference.py` (a
@@ -72,7 +72,7 @@ def reference_ms(g, camera, weights) -> tuple:
 
 
 def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
-            options: str, reference: bool, kernels=KERNELS) -> dict:
+            options: str, reference: bool, pure_jax: bool = True) -> dict:
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -102,6 +102,7 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
             times.append(time.perf_counter() - start)
         return 1e3 * float(np.median(times)), 1e3 * float(np.min(times))
 
+    kernels = KERNELS if pure_jax else KERNELS[:1]
     timed = {"jax": (None,) * 4}
     for kernel in kernels:
         def image(g, kernel=kernel):
@@ -185,23 +186,23 @@ def main(argv=None):
                              "Both run, interleaved per configuration, by default.")
     parser.add_argument("--no-reference", action="store_true",
                         help="skip timing benchmarks/tile_reference.py (torch) in the same process")
-    parser.add_argument("--kernels", nargs="+", default=list(KERNELS), choices=KERNELS,
-                        help="compositors timed: auto (the C++ kernel where built) and jax")
+    parser.add_argument("--no-jax", action="store_true",
+                        help="time only the default compositor (the C++ kernel where built), "
+                             "not the pure-JAX one beside it")
     parser.add_argument("--one", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.one:
         num, size = (int(v) for v in args.one.split("x"))
         print(json.dumps(run_one(num, size, args.repeats, args.blend, args.unroll,
-                                 args.options[0], not args.no_reference,
-                                 tuple(["auto"] + [k for k in args.kernels if k != "auto"]))))
+                                 args.options[0], not args.no_reference, not args.no_jax)))
         return
     results = []
     for config in args.configs:
         for options in args.options:
             cmd = [sys.executable, os.path.abspath(__file__), "--one", config, "--repeats",
                    str(args.repeats), "--blend", args.blend, "--unroll", str(args.unroll),
-                   "--options", options, "--kernels", *args.kernels] + (
-                       ["--no-reference"] if args.no_reference else [])
+                   "--options", options] + (["--no-reference"] if args.no_reference else []) + (
+                       ["--no-jax"] if args.no_jax else [])
             line = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
             result = json.loads(line.strip().splitlines()[-1])
             result["options"] = options

@@ -34,7 +34,7 @@ RENDER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "render.py")
 def run(num: int, size: int, repeats: int) -> dict:
     """One grid point through `render.py --one`, or {"error": ...}."""
     cmd = [sys.executable, RENDER, "--one", f"{num}x{size}", "--repeats", str(repeats),
-           "--options", "fast", "--kernels", "auto", "--no-reference"]
+           "--options", "fast", "--no-jax", "--no-reference"]
     done = subprocess.run(cmd, capture_output=True, text=True)
     if done.returncode != 0:
         lines = (done.stderr.strip().splitlines() or ["no output"])

@@ -39,6 +39,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import numpy as np  # noqa: E402
 
 from editbench import Bench, default_scene_and_avatar, fmt, mean_over_protocols  # noqa: E402
+from editbench import paired_change  # noqa: E402
 from editbench import save_figure, write_report  # noqa: E402
 from scenarios import closed_split  # noqa: E402
 
@@ -77,10 +78,9 @@ def rows(bleed: int) -> dict:
         for method in COMPARED:
             out[f"prompt/{method}/{opt_name}"] = dict(region="prompt", editor_bleed=bleed,
                                                      **METHODS[method], **OPTIMISERS[opt_name])
-            for seed in SEEDS[1:]:
-                out[f"none/{method}/{opt_name}/seed{seed}"] = dict(
-                    region="none", editor_bleed=bleed, seed=seed, **METHODS[method],
-                    **OPTIMISERS[opt_name])
+            for name, seed in zip(seed_rows(method, opt_name)[1:], SEEDS[1:]):
+                out[name] = dict(region="none", editor_bleed=bleed, seed=seed, **METHODS[method],
+                                 **OPTIMISERS[opt_name])
         for beta in BETAS:
             if beta != EditConfig.beta:
                 out[f"none/wabe_grad/{opt_name}/beta{beta:g}"] = dict(
@@ -128,8 +128,7 @@ def claim_lines(results: dict, claims=CLAIMS) -> list:
         for metric, region, title in CLAIM_METRICS:
             values = {m: [mean_over_protocols(results[r], metric, region) for r in names[m]]
                       for m in COMPARED}
-            gains = [b - a for a, b in zip(*values.values())]
-            spread = max(max(v) - min(v) for v in values.values())
+            gains, spread = paired_change(values["wabe_grad"], values["standard"])
             lines.append(f"| {label} | {title} | " + " | ".join(
                 " / ".join(fmt(x) for x in values[m]) for m in COMPARED)
                 + f" | {' / '.join(f'{g:+.2f}' for g in gains)} | {np.mean(gains):+.2f} | "
