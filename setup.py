@@ -1,4 +1,4 @@
-"""Builds the optional C++ compositor and argsort (`gae_jax/render/kernel/*.cc`, see
+"""Builds the optional C++ compositor, argsort and tile binning (`gae_jax/render/kernel/*.cc`, see
 `gae_jax.render.cpu_kernel`) against the XLA FFI headers that jaxlib ships. Everything else is in
 pyproject.toml. A failed build is reported and skipped: the package then composites with its
 pure-JAX walk (slower on CPU, the same results).
@@ -53,7 +53,8 @@ INCLUDE = _ffi_include()
 setup(
     ext_modules=[Extension(
         "gae_jax.render._composite_cpu",
-        sources=["gae_jax/render/kernel/composite_cpu.cc", "gae_jax/render/kernel/sort_cpu.cc"],
+        sources=["gae_jax/render/kernel/composite_cpu.cc", "gae_jax/render/kernel/sort_cpu.cc",
+                 "gae_jax/render/kernel/bin_cpu.cc"],
         language="c++",
         # -isystem: the XLA headers' own warnings are not ours.
         extra_compile_args=["-std=c++17", "-fopenmp-simd", "-fno-math-errno",

@@ -1,5 +1,5 @@
-"""The C++ compositor (`kernel/composite_cpu.cc`) and argsort (`kernel/sort_cpu.cc`), called
-through the XLA FFI on CPU.
+"""The C++ compositor (`kernel/composite_cpu.cc`), argsort (`kernel/sort_cpu.cc`) and tile
+binning (`kernel/bin_cpu.cc`), called through the XLA FFI on CPU.
 
 `pip install` compiles it into `gae_jax/render/_composite_cpu*.so` (see `setup.py`); when it is
 not built, or cannot be loaded, `available()` is False and `composite` uses its pure-JAX walk,
@@ -25,6 +25,7 @@ MODULE = "gae_jax.render._composite_cpu"
 FORWARD_TARGET = "gae_jax_composite_forward"
 BACKWARD_TARGET = "gae_jax_composite_backward"
 ARGSORT_TARGET = "gae_jax_argsort_int32"
+BIN_TARGET = "gae_jax_bin_tiles"
 MODE_CODES = {"standard": 0, "wabe": 1, "wabe_grad": 2}
 PIXELS_PER_TILE = 256
 
@@ -43,6 +44,8 @@ def _load() -> str | None:
                                     jax.ffi.pycapsule(library.GaeCompositeBackward),
                                     platform="cpu")
         jax.ffi.register_ffi_target(ARGSORT_TARGET, jax.ffi.pycapsule(library.GaeArgsortInt32),
+                                    platform="cpu")
+        jax.ffi.register_ffi_target(BIN_TARGET, jax.ffi.pycapsule(library.GaeBinTiles),
                                     platform="cpu")
     except (OSError, AttributeError, RuntimeError, ValueError) as error:
         return f"{spec.origin} did not load: {error}"
@@ -117,3 +120,19 @@ def argsort(keys: jax.Array) -> jax.Array:
     call = jax.ffi.ffi_call(ARGSORT_TARGET, jax.ShapeDtypeStruct(keys.shape, jnp.int32),
                             vmap_method="sequential")
     return call(keys)
+
+
+def bin_tiles(x0, x1, y0, y1, order, tiles_x: int, num_tiles: int, capacity: int, budget: int):
+    """Per-tile lists of Gaussians in depth order, as `tiles.bin_gaussians` builds them.
+
+    Args:
+      x0, x1, y0, y1: (N,) int32 inclusive tile ranges (empty when x1 < x0 or y1 < y0);
+      order: (N,) int32 depth order; budget: pairs kept in all, counted nearest first.
+    Returns table (num_tiles, capacity) int32 (-1 padding) and (num_tiles,) int32 pairs of the
+    budget per tile (before the capacity).
+    """
+    _require()
+    out_types = (jax.ShapeDtypeStruct((num_tiles, capacity), jnp.int32),
+                 jax.ShapeDtypeStruct((num_tiles,), jnp.int32))
+    call = jax.ffi.ffi_call(BIN_TARGET, out_types, vmap_method="sequential")
+    return call(x0, x1, y0, y1, order, tiles_x=np.int64(tiles_x), budget=np.int64(budget))

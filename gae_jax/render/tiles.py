@@ -107,7 +107,9 @@ def bin_gaussians(means2d, extents, depths, visible, width: int, height: int, ca
       means2d: (N, 2) projected means; extents: (N, 2) half-widths; depths: (N,); visible: (N,).
       capacity: list length per tile.
       max_pairs: static budget of (Gaussian, tile) pairs; defaults to num_tiles * capacity.
-      kernel: how the depth order is sorted (see `depth_order`).
+      kernel: "auto" sorts the depth order (see `depth_order`) and builds the lists
+        (`cpu_kernel.bin_tiles`, one walk over the Gaussians) with the C++ kernels on CPU where
+        they are built; "jax" with `lax.sort` both times. The lists are the same.
     """
     if capacity < 1:
         raise ValueError(f"tile capacity must be >= 1, got {capacity}")
@@ -131,7 +133,39 @@ def bin_gaussians(means2d, extents, depths, visible, width: int, height: int, ca
     counts = jnp.cumsum(jnp.cumsum(diff, axis=0, dtype=jnp.int32), axis=1, dtype=jnp.int32)[:tiles_y, :tiles_x].reshape(-1)
 
     order = depth_order(depths, visible, kernel)
-    count_by_rank = per_gaussian[order]
+    total = jnp.sum(per_gaussian, dtype=jnp.int32)
+
+    def in_jax(x0, x1, y0, y1, order):
+        return _lists_in_jax(x0, x1, y0, y1, order, tiles_x, num_tiles, capacity, budget)
+
+    if kernel == "auto" and cpu_kernel.available():
+        def in_cpp(x0, x1, y0, y1, order):
+            return cpu_kernel.bin_tiles(x0, x1, y0, y1, order, tiles_x, num_tiles, capacity,
+                                        budget)
+        table, kept_all = lax.platform_dependent(x0, x1, y0, y1, order, cpu=in_cpp,
+                                                 default=in_jax)
+    else:
+        table, kept_all = in_jax(x0, x1, y0, y1, order)
+    kept = jnp.minimum(kept_all, capacity)
+    return TileBins(
+        table=table,
+        kept=kept,
+        counts=counts,
+        num_slots=jnp.max(kept) if num_tiles > 0 else jnp.int32(0),
+        overflow_tiles=jnp.sum(counts > capacity, dtype=jnp.int32),
+        dropped_pairs=total - jnp.sum(kept, dtype=jnp.int32),
+        tiles_x=tiles_x,
+        tiles_y=tiles_y,
+    )
+
+
+def _lists_in_jax(x0, x1, y0, y1, order, tiles_x: int, num_tiles: int, capacity: int,
+                  budget: int):
+    """(table (T, capacity) int32, pairs of the budget per tile (T,) int32) by sorting the
+    budget's (tile, rank) keys; `cpu_kernel.bin_tiles` gives the same by one walk."""
+    n = x0.shape[0]
+    span_x = x1 - x0 + 1
+    count_by_rank = (span_x * (y1 - y0 + 1))[order]
     ends = jnp.cumsum(count_by_rank, dtype=jnp.int32)
     starts = ends - count_by_rank
     total = ends[-1] if n > 0 else jnp.int32(0)
@@ -163,13 +197,4 @@ def bin_gaussians(means2d, extents, depths, visible, width: int, height: int, ca
     slot = jnp.arange(capacity, dtype=jnp.int32)
     src = jnp.minimum(first[:, None] + slot[None, :], budget - 1)
     table = jnp.where(slot[None, :] < kept[:, None], order[sorted_rank[src]], -1)
-    return TileBins(
-        table=table.astype(jnp.int32),
-        kept=kept,
-        counts=counts,
-        num_slots=jnp.max(kept) if num_tiles > 0 else jnp.int32(0),
-        overflow_tiles=jnp.sum(counts > capacity, dtype=jnp.int32),
-        dropped_pairs=total - jnp.sum(kept, dtype=jnp.int32),
-        tiles_x=tiles_x,
-        tiles_y=tiles_y,
-    )
+    return table.astype(jnp.int32), kept_all

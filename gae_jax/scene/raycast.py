@@ -1,4 +1,4 @@
-"""Ground-truth images by ray casting a coloured triangle mesh (trimesh, embree when installed).
+"""Ground-truth images by ray casting a coloured triangle mesh (embree, through embreex).
 
 An independent renderer: it shares nothing with `splat` but the `Camera` convention (OpenCV axes,
 pixel centres at +0.5). Each ray hits the first triangle; its colour is the barycentric
@@ -46,30 +46,35 @@ def camera_rays(camera: Camera, offset=(0.5, 0.5)):
     return np.broadcast_to(eye, d_world.shape).copy(), d_world
 
 
-def _first_hits(mesh, vertices, faces, colors, origins, dirs, background):
-    """Colour (N, 3), face (N,) (-1 = miss) and hit point (N, 3) of each ray's first hit."""
-    face_of = np.asarray(mesh.ray.intersects_first(origins, dirs), np.int64)
+def _intersector(vertices, faces):
+    """An embree scene of the mesh (float32 vertices: embree intersects in float32)."""
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
+    scene = rtcore_scene.EmbreeScene()
+    TriangleMesh(scene=scene, vertices=np.ascontiguousarray(vertices, np.float32),
+                 indices=np.ascontiguousarray(faces, np.int32))
+    return scene
+
+
+def _first_hits(scene, faces, colors, origins, dirs, background, shade=True):
+    """Face (N,) int64 (-1 = miss), distance along the ray (N,) float64 (inf at a miss) and, when
+    `shade`, colour (N, 3) float64: the vertex colours interpolated with embree's barycentrics
+    (u, v of the hit point p = (1 - u - v) a + u b + v c)."""
+    hits = scene.run(np.ascontiguousarray(origins, np.float32),
+                     np.ascontiguousarray(dirs, np.float32), output=1)
+    face_of = hits["primID"].astype(np.int64)
     hit = face_of >= 0
+    distance = np.where(hit, hits["tfar"].astype(np.float64), np.inf)
+    if not shade:
+        return face_of, distance, None
     image = np.tile(np.asarray(background, np.float64), (origins.shape[0], 1))
-    points = np.full(origins.shape, np.nan)
     if hit.any():
-        tri = vertices[faces[face_of[hit]]]
-        o, d = origins[hit], dirs[hit]
-        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-        normal = np.cross(e1, e2)
-        # Ray-plane intersection in float64, then barycentrics of the hit point.
-        t = np.einsum("nc,nc->n", normal, tri[:, 0] - o) / np.einsum("nc,nc->n", normal, d)
-        p = o + t[:, None] * d
-        rel = p - tri[:, 0]
-        d11, d12, d22 = (np.einsum("nc,nc->n", a, b) for a, b in ((e1, e1), (e1, e2), (e2, e2)))
-        r1, r2 = np.einsum("nc,nc->n", rel, e1), np.einsum("nc,nc->n", rel, e2)
-        det = d11 * d22 - d12 * d12
-        l1, l2 = (d22 * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
-        bary = np.clip(np.stack([1 - l1 - l2, l1, l2], -1), 0, 1)
+        u, v = hits["u"][hit].astype(np.float64), hits["v"][hit].astype(np.float64)
+        bary = np.clip(np.stack([1 - u - v, u, v], -1), 0, 1)
         bary /= bary.sum(-1, keepdims=True)
         image[hit] = np.einsum("nk,nkc->nc", bary, colors[faces[face_of[hit]]])
-        points[hit] = p
-    return image, face_of, points
+    return face_of, distance, image
 
 
 def raycast(vertices, faces, vertex_colors, face_regions, camera: Camera,
@@ -92,8 +97,6 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
     import os
     from concurrent.futures import ThreadPoolExecutor
 
-    import trimesh
-
     vertices = np.asarray(vertices, np.float64)
     faces = np.asarray(faces, np.int64)
     colors = np.asarray(vertex_colors, np.float64)
@@ -106,11 +109,10 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
         raise ValueError(f"face_regions must be ({faces.shape[0]},), got {regions.shape}")
     if supersample < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
-    mesh = trimesh.Trimesh(vertices, faces, process=False)
-    mesh.ray.intersects_first(np.zeros((1, 3)), np.ones((1, 3)))  # build the BVH once, up front
+    scene = _intersector(vertices, faces)
 
     def view(camera):
-        return _view(mesh, vertices, faces, colors, regions, camera, background, supersample)
+        return _view(scene, faces, colors, regions, camera, background, supersample)
 
     workers = workers or os.cpu_count() or 1
     if workers == 1 or len(cameras) == 1:
@@ -119,22 +121,30 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
         return list(pool.map(view, cameras))
 
 
-def _view(mesh, vertices, faces, colors, regions, camera, background, supersample):
-    image, face_of, points = _first_hits(mesh, vertices, faces, colors, *camera_rays(camera),
-                                         background)
-    if supersample > 1:
-        total = np.zeros_like(image)
+def _view(scene, faces, colors, regions, camera, background, supersample):
+    """One camera's RaycastImage: colour from `supersample`^2 stratified rays per pixel; face,
+    region and depth from the centre ray (whose colour is one of the samples when the count is
+    odd and is not computed when it is even)."""
+    origins, dirs = camera_rays(camera)
+    centre_is_sample = supersample % 2 == 1
+    face_of, distance, centre = _first_hits(scene, faces, colors, origins, dirs, background,
+                                            shade=centre_is_sample)
+    if supersample == 1:
+        image = centre
+    else:
+        image = np.zeros((origins.shape[0], 3))
         cells = (np.arange(supersample) + 0.5) / supersample
         for oy in cells:
             for ox in cells:
-                if ox == oy == 0.5:  # odd counts include the centre ray, already cast
-                    total += image
+                if ox == oy == 0.5:
+                    image += centre
                     continue
-                total += _first_hits(mesh, vertices, faces, colors,
-                                     *camera_rays(camera, (ox, oy)), background)[0]
-        image = total / supersample ** 2
+                image += _first_hits(scene, faces, colors, *camera_rays(camera, (ox, oy)),
+                                     background)[2]
+        image /= supersample ** 2
     w2c = np.asarray(camera.w2c, np.float64)
     hit = face_of >= 0
+    points = origins + np.where(hit, distance, 0.0)[:, None] * dirs
     depth = np.where(hit, points @ w2c[2, :3] + w2c[2, 3], np.inf)
     shape = (camera.height, camera.width)
     region_map = np.where(hit, regions[np.maximum(face_of, 0)], -1).astype(np.int32)
