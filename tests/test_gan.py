@@ -54,6 +54,31 @@ def test_default_widths_strides_and_init():
     assert gan.output_size(512) == 62
 
 
+def test_one_draw_init_has_the_modules_shapes_and_distribution():
+    """`init_params` (one normal draw cut into kernels) against flax's own init: the same tree,
+    shapes and dtypes, zero biases, kernels N(0, 0.02) per layer, no two layers alike, the same
+    key the same parameters."""
+    key = jax.random.PRNGKey(3)
+    ours = gan.init_params(key, (64, 48))
+    flax_init = gan.Discriminator().init(key, jnp.zeros((1, 64, 48, 6)))
+    assert jax.tree_util.tree_structure(ours) == jax.tree_util.tree_structure(flax_init)
+    for a, b in zip(jax.tree_util.tree_leaves(ours), jax.tree_util.tree_leaves(flax_init)):
+        assert a.shape == b.shape and a.dtype == b.dtype
+    layers = ours["params"]
+    for name in layers:
+        np.testing.assert_array_equal(layers[name]["bias"], 0.0)
+    for name in ("Conv_1", "Conv_2", "Conv_3"):  # >= 131k weights each
+        w = np.asarray(layers[name]["kernel"])
+        assert abs(w.std() - 0.02) < 0.0005 and abs(w.mean()) < 0.0005, name
+    firsts = {float(np.ravel(layers[n]["kernel"])[0]) for n in layers}
+    assert len(firsts) == len(layers)
+    again = gan.init_params(key, (64, 48))
+    for a, b in zip(jax.tree_util.tree_leaves(ours), jax.tree_util.tree_leaves(again)):
+        np.testing.assert_array_equal(a, b)
+    other = gan.init_params(jax.random.PRNGKey(4), (64, 48))
+    assert not np.array_equal(other["params"]["Conv_2"]["kernel"], layers["Conv_2"]["kernel"])
+
+
 def test_losses_equal_the_closed_form(x64):
     real = np.array([[-3.0, 0.0], [2.0, 40.0]])
     fake = np.array([[1.5, -2.0], [0.3, -50.0]])

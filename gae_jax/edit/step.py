@@ -71,7 +71,7 @@ def initial_state(config: StepConfig, params: dict, image_size: tuple, key) -> E
     """A fresh state: `params` copied (the step donates its state), a new discriminator for
     (H, W) images from `key`."""
     params = jax.tree_util.tree_map(jnp.array, params)
-    d_params = gan.Discriminator().init(key, jnp.zeros((1,) + tuple(image_size) + (6,)))
+    d_params = gan.init_params(key, image_size)
     return EditState(params, avatar_optimizer(config).init(params), d_params,
                      discriminator_optimizer(config).init(d_params), jnp.int32(0))
 
