@@ -2,6 +2,7 @@
 
     python benchmarks/edit_resolution.py [--sizes 128 256 512] [--iterations 8]
                                          [--kernel auto|jax] [--adversarial true|false]
+                                         [--gan-max-side N]
                                          [--out benchmarks/results/edit_resolution.json]
 
 The default scene's cameras and training images are scaled to each size (intrinsics x s, images
@@ -43,7 +44,8 @@ def scaled_scene(scene, size: int):
                                width=size, height=size, images=images, regions=regions)
 
 
-def time_size(scene, original, size: int, iterations: int, adversarial: bool = True) -> dict:
+def time_size(scene, original, size: int, iterations: int, adversarial: bool = True,
+              gan_max_side: int = 0) -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -51,7 +53,7 @@ def time_size(scene, original, size: int, iterations: int, adversarial: bool = T
     from gae_jax.edit.config import EditConfig
     from gae_jax.edit.sampler import put_batch
 
-    config = EditConfig(adversarial=adversarial)
+    config = EditConfig(adversarial=adversarial, gan_max_side=gan_max_side)
     session = edit.setup(config, scaled_scene(scene, size), original)
     state = edit.fresh_state(session)
     sampler = edit.make_sampler(session)
@@ -81,6 +83,9 @@ def main():
     parser.add_argument("--out", default="benchmarks/results/edit_resolution.json")
     parser.add_argument("--adversarial", default="true", choices=["true", "false"],
                         help="the temporal GAN in the step (the default edit has it)")
+    parser.add_argument("--gan-max-side", type=int, default=0,
+                        help="longest side of the discriminator's pairs (EditConfig."
+                             "gan_max_side; 0 = the render's own)")
     parser.add_argument("--kernel", default="auto", choices=["auto", "jax"],
                         help="the renderer's compositor and depth sort: the C++ kernels where "
                              "built (auto) or pure JAX")
@@ -99,10 +104,10 @@ def main():
     results = []
     for size in args.sizes:
         results.append(time_size(scene, original, size, args.iterations,
-                                 args.adversarial == "true"))
+                                 args.adversarial == "true", args.gan_max_side))
         print(json.dumps(results[-1]), flush=True)
     result = dict(target_512_s=1.0, kernel=args.kernel, adversarial=args.adversarial == "true",
-                  results=results)
+                  gan_max_side=args.gan_max_side, results=results)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     atomic_write_bytes(args.out, json.dumps(result, indent=1).encode())
     print(json.dumps(result))

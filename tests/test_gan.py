@@ -124,3 +124,30 @@ def test_discriminator_gradient_matches_finite_differences(x64):
     check_grads(lambda x: jnp.sum(model.apply(params, x) ** 2), (x,), 1, modes=["rev"])
     check_grads(lambda p: gan.d_loss(model.apply(p, x), model.apply(p, 1 - x)), (params,), 1,
                 modes=["rev"])
+
+
+def test_downscale_is_an_antialiased_triangle_filter():
+    """Halving (64 -> 32 rows, 48 -> 24 columns): each output is the separable filter
+    (1, 3, 3, 1) / 8 around input 2i + 0.5, the linear kernel stretched to the new pixel size
+    (computed here in numpy inside the image); longer side capped, aspect kept; nothing changes
+    at or under the cap, or with the cap 0."""
+    rng = np.random.default_rng(0)
+    x = rng.uniform(size=(2, 64, 48, 6)).astype(np.float32)
+    out = np.asarray(gan.downscale(jnp.asarray(x), 32))
+    assert out.shape == (2, 32, 24, 6)
+    w = np.array([1, 3, 3, 1]) / 8
+    rows = np.einsum("k,bkwc->bwc", w, x[:, 2 * 5 - 1:2 * 5 + 3])  # output row 5
+    ref = np.einsum("k,bkc->bc", w, rows[:, 2 * 7 - 1:2 * 7 + 3])  # output column 7
+    np.testing.assert_allclose(out[:, 5, 7], ref, atol=1e-6)
+    const = np.asarray(gan.downscale(jnp.full((1, 64, 48, 6), 0.3), 32))
+    np.testing.assert_allclose(const, 0.3, atol=1e-6)
+    for cap in (0, 64, 100):
+        np.testing.assert_array_equal(gan.downscale(jnp.asarray(x), cap), x)
+
+
+def test_gan_max_side_is_checked():
+    from gae_jax.edit.config import EditConfig
+
+    with pytest.raises(ValueError, match="gan_max_side"):
+        EditConfig(gan_max_side=gan.MIN_SIZE - 1)
+    assert EditConfig(gan_max_side=256).gan_max_side == 256

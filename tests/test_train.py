@@ -306,3 +306,36 @@ def test_edit_loss_weighs_one_minus_ssim_beside_l1_as_configured(base):
                                           jax.random.PRNGKey(0))
         _, metrics = step_module.make_edit_step(config)(state, s.rig, batch, editable)
         assert float(metrics["recon"]) == pytest.approx(l1 + weight * one_minus_ssim, rel=1e-4)
+
+
+def test_discriminator_sees_pairs_at_gan_max_side(base):
+    """The step's discriminator loss is that of the pairs resized to `gan_max_side` (48 of 96:
+    a 4x4 patch map instead of 10x10), and a cap at the image size changes nothing."""
+    from gae_jax.edit import gan
+
+    s = session_for(base, adversarial=True)
+    render = np.asarray(rigs.render_bound(s.original.trainable(), s.rig, 1, 2,
+                                          blend=s.step_config.blend).image)
+    rng = np.random.default_rng(1)
+    target = np.clip(render + rng.normal(0, 0.1, render.shape), 0, 1)[None].astype(np.float32)
+    neighbour = np.clip(render + rng.normal(0, 0.1, render.shape), 0, 1)[None].astype(np.float32)
+    batch = dict(cams=np.array([2], np.int32), frames=np.array([1], np.int32), target=target,
+                 neighbour=neighbour)
+    editable = np.ones(s.original.num, bool)
+    key = jax.random.PRNGKey(0)
+    losses = {}
+    for side in (0, SIZE, 48):
+        config = edit_config.StepConfig.of(dataclasses.replace(s.config, gan_max_side=side))
+        state = step_module.initial_state(config, s.original.trainable(), (SIZE, SIZE), key)
+        d_params = jax.tree_util.tree_map(np.asarray, state.d_params)  # the step donates
+        _, metrics = step_module.make_edit_step(config)(state, s.rig, batch, editable)
+        losses[side] = float(metrics["d_loss"])
+    real, fake = gan.make_pairs("paper", target, neighbour, render[None])
+    disc = gan.Discriminator()
+    assert disc.apply(d_params, gan.downscale(real, 48)).shape == (1, 4, 4, 1)
+    expected = s.config.d_weight * gan.d_loss(disc.apply(d_params, gan.downscale(real, 48)),
+                                              disc.apply(d_params, gan.downscale(fake, 48)))
+    full = s.config.d_weight * gan.d_loss(disc.apply(d_params, real), disc.apply(d_params, fake))
+    assert losses[48] == pytest.approx(float(expected), rel=1e-4)
+    assert losses[0] == losses[SIZE] == pytest.approx(float(full), rel=1e-4)
+    assert abs(losses[48] - losses[0]) > 1e-4 * abs(losses[0])

@@ -66,6 +66,7 @@ class EditConfig:
     adam_eps: float = 1e-8
     optimizer: str = "adam"
     d_lr: float = 1e-4
+    gan_max_side: int = 0
     reconstruct_iterations: int = 600
     checkpoint_every: int = 50
     seed: int = 0
@@ -91,6 +92,9 @@ class EditConfig:
             raise ValueError(f"lr_decay_steps must be >= 1, got {self.lr_decay_steps}")
         if self.ssim_weight < 0:
             raise ValueError(f"ssim_weight must be >= 0, got {self.ssim_weight}")
+        if self.gan_max_side and self.gan_max_side < gan.MIN_SIZE:
+            raise ValueError(f"gan_max_side must be 0 (full resolution) or >= {gan.MIN_SIZE}, "
+                             f"got {self.gan_max_side}")
         if self.beta < 0:
             raise ValueError(f"beta must be >= 0, got {self.beta}")
         region.parse_region(self.region)
@@ -146,6 +150,9 @@ HELP = {
     "optimizer": "avatar optimiser: adam, or sgd (momentum 0.9: a step proportional to the "
                  "gradient, so WABE's weights scale the moves; set the rates for it)",
     "d_lr": "discriminator Adam learning rate",
+    "gan_max_side": "longest side in px of the pairs the discriminator sees (resized, "
+                    "antialiased; 0 = the render's own): at 512 px its convolutions are most "
+                    "of an iteration, at 256 a quarter of that",
     "reconstruct_iterations": "steps of the original avatar's reconstruction when no --avatar "
                               "is given (600: teeth 19.7 dB, whole 34.9 against the truth, "
                               "300: 15.4 / 31.8; a new value reconstructs and caches a new "
@@ -200,6 +207,7 @@ class StepConfig:
     adam_eps: float
     optimizer: str
     d_lr: float
+    gan_max_side: int
 
     @classmethod
     def of(cls, config: EditConfig) -> "StepConfig":

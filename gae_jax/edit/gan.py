@@ -71,6 +71,19 @@ def output_size(size: int, strides: Sequence[int] = (2, 2, 2, 1, 1)) -> int:
     return size
 
 
+def downscale(pairs: jax.Array, max_side: int) -> jax.Array:
+    """(B, H, W, C) pairs resized (linear, antialiased) so that their longer side is at most
+    `max_side` (0 or a larger side: unchanged), aspect kept. What the discriminator sees when
+    its cost at full resolution is too high: its convolutions cost ~(H W), 16x less at 1/4."""
+    height, width = pairs.shape[-3], pairs.shape[-2]
+    if max_side <= 0 or max(height, width) <= max_side:
+        return pairs
+    scale = max_side / max(height, width)
+    size = (max(1, round(height * scale)), max(1, round(width * scale)))
+    return jax.image.resize(pairs, pairs.shape[:-3] + size + pairs.shape[-1:], "linear",
+                            antialias=True)
+
+
 def make_pairs(mode: str, edit_t: jax.Array, edit_k: jax.Array, render_t: jax.Array):
     """(real, fake) pairs, each (..., H, W, 6), for the given pair `mode`."""
     if mode == "paper":

@@ -104,8 +104,8 @@ def make_edit_step(config: StepConfig):
         d_params, d_opt_state = state.d_params, state.d_opt_state
         d_value = jnp.float32(0.0)
         if config.adversarial:
-            real, fake = gan.make_pairs(config.pair_mode, target, neighbour,
-                                        jax.lax.stop_gradient(images))
+            real, fake = (gan.downscale(x, config.gan_max_side) for x in gan.make_pairs(
+                config.pair_mode, target, neighbour, jax.lax.stop_gradient(images)))
 
             def d_objective(p):
                 return config.d_weight * gan.d_loss(disc.apply(p, real), disc.apply(p, fake))
@@ -122,7 +122,7 @@ def make_edit_step(config: StepConfig):
             adv = jnp.float32(0.0)
             if config.adversarial:
                 _, fake = gan.make_pairs(config.pair_mode, target, neighbour, imgs)
-                adv = gan.g_loss(disc.apply(d_params, fake))
+                adv = gan.g_loss(disc.apply(d_params, gan.downscale(fake, config.gan_max_side)))
             return config.recon_weight * recon + config.g_weight * adv, (recon, adv)
 
         (_, (recon, adv)), d_images = jax.value_and_grad(image_objective, has_aux=True)(images)
