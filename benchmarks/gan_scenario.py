@@ -2,6 +2,7 @@
 
     python benchmarks/gan_scenario.py [--head makehuman] [--weights 0 0.01 0.1 1] [--seeds 0 1 2]
                                       [--iterations 100] [--out benchmarks/results/gan_scenario]
+                                      [--only ROW_PREFIX] [--gan-max-side N]
 
 The scenario where the paper says the GAN matters: the editor is inconsistent with several
 plausible answers, not jitter around one, on the cached default avatar of `--head` (the shipped
@@ -240,6 +241,18 @@ def chart(tables: dict, path: str) -> None:
     save_figure(fig, path)
 
 
+def command_tail(args) -> str:
+    """The flags beyond --head that made this report (a subset, a discriminator size)."""
+    tail = ""
+    if args.only:
+        tail += f" --only {args.only} --weights {' '.join(f'{w:g}' for w in args.weights)}"
+    if args.gan_max_side:
+        tail += f" --gan-max-side {args.gan_max_side}"
+    if args.out != "benchmarks/results/gan_scenario":
+        tail += f" --out {args.out}"
+    return tail
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--head", choices=head.HEAD_KINDS, default=head.DEFAULT_KIND)
@@ -247,6 +260,10 @@ def main():
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--iterations", type=int, default=100)
     parser.add_argument("--out", default="benchmarks/results/gan_scenario")
+    parser.add_argument("--only", default="",
+                        help="run only the rows whose name starts with this (e.g. colour2)")
+    parser.add_argument("--gan-max-side", type=int, default=0,
+                        help="EditConfig.gan_max_side of every row (0: full resolution)")
     args = parser.parse_args()
     scene, original = default_scene_and_avatar(args.head)
     bench = Bench(args.out + ".json")
@@ -256,12 +273,14 @@ def main():
              f"and \"{COLOUR_PROMPT}\" dark or light ({args.iterations} iterations)", "",
              f"The skin (stripes) or the lips (colour), mean over the three protocols, "
              f"{args.head} head. Command: `python benchmarks/gan_scenario.py --head "
-             f"{args.head}`.", "",
+             f"{args.head}{command_tail(args)}`.", "",
              "| row | PSNR vs better mode | PSNR vs mean of modes | LPIPS vs better mode | "
              "sharpness | flicker (region) | edit s |", "|---|---|---|---|---|---|---|"]
     for name, overrides in rows(args.weights, args.seeds).items():
-        config = dataclasses.replace(EditConfig(prompt=PROMPT, iterations=args.iterations),
-                                     **overrides)
+        if not name.startswith(args.only):
+            continue
+        config = dataclasses.replace(EditConfig(prompt=PROMPT, iterations=args.iterations,
+                                                gan_max_side=args.gan_max_side), **overrides)
         extra: dict = {}
 
         def on_edited(avatar, extra=extra, config=config):
@@ -292,9 +311,12 @@ def main():
                      f"{fmt(mean(scores, 'psnr_mean_of_modes'))} | "
                      f"{fmt(mean(scores, 'lpips_best'), 3)} | {fmt(mean(scores, 'sharpness'))}"
                      " | - | - |")
+    bench.save(iterations=args.iterations, head=args.head)
+    if args.only:  # a subset: the table of its rows, no pairing over the study
+        write_report(args.out + ".md", "\n".join(lines) + "\n")
+        return
     tables = chart_tables(bench.results, args.weights, args.seeds)
     lines += summary_lines(bench.results, args.weights, args.seeds)
-    bench.save(iterations=args.iterations, head=args.head)
     write_report(args.out + ".md", "\n".join(lines) + "\n")
     chart(tables, args.out + ".png")
 

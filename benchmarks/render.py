@@ -127,6 +127,13 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
         only = jax.jit(lambda x, cfg=cfg: comp.composite(cfg, bins.table, bins.kept, x)[0],
                        compiler_options=opts)
         composite_ms[kernel] = timings_ms(lambda _, only=only: only(packed))[1]
+    # Binning alone (depth order, rectangles, tile lists): the C++ walk against lax.sort.
+    binning_ms = {"jax": None}
+    for kernel in kernels:
+        lists = jax.jit(lambda m, e, d, v, kernel=kernel: bin_gaussians(
+            m, e, d, v, size, size, capacity, kernel=kernel).table, compiler_options=opts)
+        binning_ms[kernel] = timings_ms(
+            lambda _, lists=lists: lists(p.means2d, p.extents, p.depths, p.visible))[1]
     (fwd_ms, fwd_min, fwd_bwd_ms, fwd_bwd_min) = timed["auto"]
     (jax_fwd_ms, jax_fwd_min, jax_fwd_bwd_ms, jax_fwd_bwd_min) = timed["jax"]
     # Machine-speed probe: this VM's speed drifts by up to 2x over an hour, so each result carries
@@ -154,11 +161,13 @@ def run_one(num: int, size: int, repeats: int, blend_name: str, unroll: int,
             jax_forward_ms=round(jax_fwd_ms, 2), jax_forward_backward_ms=round(jax_fwd_bwd_ms, 2),
             kernel_speedup_forward=round(jax_fwd_min / fwd_min, 2),
             kernel_speedup_forward_backward=round(jax_fwd_bwd_min / fwd_bwd_min, 2),
-            jax_composite_min_ms=round(composite_ms["jax"], 2))),
+            jax_composite_min_ms=round(composite_ms["jax"], 2),
+            jax_binning_min_ms=round(binning_ms["jax"], 2))),
         tile_pairs_per_s_forward=round(pairs / (fwd_ms * 1e-3)),
         walked_pairs_per_s_forward=round(walked / (fwd_ms * 1e-3)),
         exp_bound_per_s=round(cores / (numpy_exp_ns * 1e-9)),
         composite_min_ms=round(composite_ms["auto"], 2), walked_pairs=walked,
+        binning_min_ms=round(binning_ms["auto"], 2),
         composite_share_of_exp_bound=round(
             walked / (composite_ms["auto"] * 1e-3) / (cores / (numpy_exp_ns * 1e-9)), 3),
         forward_share_of_exp_bound=round(walked / (fwd_ms * 1e-3) / (cores / (numpy_exp_ns * 1e-9)),

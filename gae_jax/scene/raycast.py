@@ -46,7 +46,7 @@ def camera_rays(camera: Camera, offset=(0.5, 0.5)):
     return np.broadcast_to(eye, d_world.shape).copy(), d_world
 
 
-def _intersector(vertices, faces):
+def embree_scene(vertices, faces):
     """An embree scene of the mesh (float32 vertices: embree intersects in float32)."""
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
@@ -109,7 +109,7 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
         raise ValueError(f"face_regions must be ({faces.shape[0]},), got {regions.shape}")
     if supersample < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
-    scene = _intersector(vertices, faces)
+    scene = embree_scene(vertices, faces)
 
     def view(camera):
         return _view(scene, faces, colors, regions, camera, background, supersample)

@@ -1,0 +1,75 @@
+"""How fast the ground truth is ray cast (issue 17, item 2: rays per second).
+
+    python benchmarks/raycast.py [--head makehuman] [--out benchmarks/results/raycast.json]
+
+Builds the default scene of `--head` into an empty cache folder (every frame of every sequence
+from every camera, `supersample` 2: four colour rays per pixel plus the centre ray for labels
+and depth) and reports the wall time, frames and rays per second, and, on one frame in the same
+process, embree's own rate on the same rays (`EmbreeScene.run` alone, both cores) for the
+ceiling the Python around it leaves. Prints and writes one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def main(argv=None) -> dict:
+    import numpy as np
+
+    from gae_jax.model import flame, head
+    from gae_jax.render.camera import Camera
+    from gae_jax.scene import raycast, synthetic
+    from gae_jax.util.fileio import atomic_write_bytes
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--head", choices=head.HEAD_KINDS, default=head.DEFAULT_KIND)
+    parser.add_argument("--out", default="benchmarks/results/raycast.json")
+    args = parser.parse_args(argv)
+
+    start = time.perf_counter()
+    scene = synthetic.make_synthetic_scene(head_kind=args.head, progress=False,
+                                           cache_dir=tempfile.mkdtemp(prefix="raycast-bench-"))
+    build_s = time.perf_counter() - start
+    frames = sum(s.num_frames for s in scene.sequences.values())
+    cameras = scene.intrinsics.shape[0]
+    casts = scene.supersample ** 2 + (scene.supersample % 2 == 0)  # + the centre ray
+    rays = frames * cameras * scene.width * scene.height * casts
+
+    name = next(iter(scene.sequences))
+    verts = np.asarray(flame.lbs(scene.model, scene.sequences[name].params(scene.shapes["A"], 0)))
+    embree = raycast.embree_scene(verts, np.asarray(scene.model.faces))
+    batches = []
+    for k, m in zip(scene.intrinsics, scene.w2c):
+        camera = Camera(intrinsics=k, w2c=m, width=scene.width, height=scene.height)
+        o, d = raycast.camera_rays(camera, (0.25, 0.25))
+        batches.append((o.astype(np.float32), d.astype(np.float32)))
+    with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
+        list(pool.map(lambda b: embree.run(*b), batches))
+        start = time.perf_counter()
+        for _ in range(casts):
+            list(pool.map(lambda b: embree.run(*b, output=1), batches))
+        embree_s = time.perf_counter() - start
+    result = dict(head=args.head, size=scene.width, cameras=cameras, frames=frames,
+                  rays_per_pixel=casts, rays=rays, build_s=round(build_s, 1),
+                  frames_per_s=round(frames / build_s, 2),
+                  rays_per_s=round(rays / build_s),
+                  embree_alone_rays_per_s=round(casts * cameras * scene.width * scene.height
+                                                / embree_s),
+                  cores=os.cpu_count())
+    os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
+    atomic_write_bytes(args.out, json.dumps(result, indent=1).encode())
+    print(json.dumps(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()
