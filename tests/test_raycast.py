@@ -88,3 +88,21 @@ def test_threaded_views_equal_one_at_a_time():
     for a, b in zip(serial, threaded):
         np.testing.assert_array_equal(a.image, b.image)
         np.testing.assert_array_equal(a.regions, b.regions)
+
+
+def test_precomputed_rays_give_the_same_images_and_must_match_the_cameras():
+    from gae_jax.scene.raycast import ray_sets, raycast_views
+
+    verts, faces, colors, regions = two_triangles()
+    cameras = [make_camera(np.eye(4), 24, 16, fov_degrees=f) for f in (40.0, 55.0)]
+    for supersample in (1, 2, 3):
+        rays = ray_sets(cameras, supersample)
+        assert len(rays[0]) == supersample ** 2 + (supersample % 2 == 0)
+        fresh = raycast_views(verts, faces, colors, regions, cameras, supersample=supersample)
+        reused = raycast_views(verts, faces, colors, regions, cameras, supersample=supersample,
+                               rays=rays)
+        for a, b in zip(fresh, reused):
+            for field in ("image", "regions", "depth", "hit", "faces"):
+                np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    with pytest.raises(ValueError, match="rays holds 1 cameras"):
+        raycast_views(verts, faces, colors, regions, cameras, rays=ray_sets(cameras[:1], 1))

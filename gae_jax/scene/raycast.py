@@ -46,6 +46,15 @@ def camera_rays(camera: Camera, offset=(0.5, 0.5)):
     return np.broadcast_to(eye, d_world.shape).copy(), d_world
 
 
+def ray_sets(cameras, supersample: int) -> list:
+    """Per camera, {(x, y) offset inside the pixel: (origins, directions)} of every ray
+    `raycast_views` casts (the centre (0.5, 0.5) and the `supersample`^2 stratified offsets).
+    A fixed rig's rays are the same for every frame: build them once and pass them in."""
+    cells = (np.arange(supersample) + 0.5) / supersample
+    offsets = {(0.5, 0.5)} | {(float(x), float(y)) for y in cells for x in cells}
+    return [{o: camera_rays(camera, o) for o in sorted(offsets)} for camera in cameras]
+
+
 def embree_scene(vertices, faces):
     """An embree scene of the mesh (float32 vertices: embree intersects in float32)."""
     from embreex import rtcore_scene
@@ -91,9 +100,11 @@ def raycast(vertices, faces, vertex_colors, face_regions, camera: Camera,
 
 
 def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, background=(1.0, 1.0, 1.0),
-                  supersample: int = 1, workers: int | None = None) -> list[RaycastImage]:
+                  supersample: int = 1, workers: int | None = None,
+                  rays: list | None = None) -> list[RaycastImage]:
     """`raycast` of one mesh from several cameras, sharing one acceleration structure across
-    `workers` threads (embree releases the GIL; None = one per CPU)."""
+    `workers` threads (embree releases the GIL; None = one per CPU). `rays`: the cameras'
+    `ray_sets(cameras, supersample)`, when the caller casts the same rig again."""
     import os
     from concurrent.futures import ThreadPoolExecutor
 
@@ -109,23 +120,26 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
         raise ValueError(f"face_regions must be ({faces.shape[0]},), got {regions.shape}")
     if supersample < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
+    rays = ray_sets(cameras, supersample) if rays is None else rays
+    if len(rays) != len(cameras):
+        raise ValueError(f"rays holds {len(rays)} cameras' rays for {len(cameras)} cameras")
     scene = embree_scene(vertices, faces)
 
-    def view(camera):
-        return _view(scene, faces, colors, regions, camera, background, supersample)
+    def view(args):
+        return _view(scene, faces, colors, regions, *args, background, supersample)
 
     workers = workers or os.cpu_count() or 1
     if workers == 1 or len(cameras) == 1:
-        return [view(c) for c in cameras]
+        return [view(a) for a in zip(cameras, rays)]
     with ThreadPoolExecutor(workers) as pool:
-        return list(pool.map(view, cameras))
+        return list(pool.map(view, zip(cameras, rays)))
 
 
-def _view(scene, faces, colors, regions, camera, background, supersample):
+def _view(scene, faces, colors, regions, camera, rays, background, supersample):
     """One camera's RaycastImage: colour from `supersample`^2 stratified rays per pixel; face,
     region and depth from the centre ray (whose colour is one of the samples when the count is
     odd and is not computed when it is even)."""
-    origins, dirs = camera_rays(camera)
+    origins, dirs = rays[(0.5, 0.5)]
     centre_is_sample = supersample % 2 == 1
     face_of, distance, centre = _first_hits(scene, faces, colors, origins, dirs, background,
                                             shade=centre_is_sample)
@@ -139,7 +153,7 @@ def _view(scene, faces, colors, regions, camera, background, supersample):
                 if ox == oy == 0.5:
                     image += centre
                     continue
-                image += _first_hits(scene, faces, colors, *camera_rays(camera, (ox, oy)),
+                image += _first_hits(scene, faces, colors, *rays[(float(ox), float(oy))],
                                      background)[2]
         image /= supersample ** 2
     w2c = np.asarray(camera.w2c, np.float64)

@@ -31,7 +31,7 @@ import numpy as np
 
 from gae_jax.model import flame, head
 from gae_jax.render.camera import Camera, look_at_w2c, make_camera
-from gae_jax.scene.raycast import raycast_views
+from gae_jax.scene.raycast import ray_sets, raycast_views
 from gae_jax.scene.types import Scene, Sequence
 from gae_jax.util.fileio import atomic_write_bytes, cache_root
 
@@ -214,11 +214,13 @@ _posed = jax.jit(flame.lbs)  # (one program per head; eager LBS took 30 ms a fra
 
 
 def render_frame(model, face_regions, vertex_colors, shape, sequence: Sequence, frame: int,
-                 intrinsics, w2c, size: int, background, supersample: int = 1):
+                 intrinsics, w2c, size: int, background, supersample: int = 1,
+                 rays: list | None = None):
     """Ground truth of one frame from every camera by ray casting the posed, coloured mesh.
 
     Pass edited `vertex_colors` to get the ideal edit of the same frame; `supersample` rays per
-    pixel per axis anti-alias the colour (see `raycast`).
+    pixel per axis anti-alias the colour (see `raycast`); `rays`: `raycast.ray_sets` of the rig,
+    built once by a caller that renders many frames.
     Returns images (C, H, W, 3) uint8 and region maps (C, H, W) int8 (-1 background).
     """
     verts = np.asarray(_posed(model, sequence.params(shape, frame)))
@@ -228,7 +230,7 @@ def render_frame(model, face_regions, vertex_colors, shape, sequence: Sequence, 
     cameras = [Camera(intrinsics=k, w2c=m, width=size, height=size)
                for k, m in zip(intrinsics, w2c)]
     views = raycast_views(verts, faces, vertex_colors, face_regions, cameras, background,
-                          supersample)
+                          supersample, rays=rays)
     for c, out in enumerate(views):
         images[c] = (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8)
         regions[c] = out.regions
@@ -295,12 +297,14 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
         images, regions = {}, {}
         total = sum(s.num_frames for s in sequences.values())
         bar = _progress(total, "ground truth frames", progress)
+        rays = ray_sets([Camera(intrinsics=k, w2c=m, width=size, height=size)
+                         for k, m in zip(intrinsics, w2c)], supersample)
         for name, seq in sequences.items():
             per_frame = []
             for t in range(seq.num_frames):
                 per_frame.append(render_frame(model, assets.face_regions, colours[seq.identity],
                                               shapes[seq.identity], seq, t, intrinsics, w2c,
-                                              size, bg, supersample))
+                                              size, bg, supersample, rays))
                 bar.update(1)
             images[name] = np.stack([f[0] for f in per_frame], axis=1)
             regions[name] = np.stack([f[1] for f in per_frame], axis=1)
