@@ -26,7 +26,6 @@ def main(argv=None) -> dict:
     import numpy as np
 
     from gae_jax.model import flame, head
-    from gae_jax.render.camera import Camera
     from gae_jax.scene import raycast, synthetic
     from gae_jax.util.fileio import atomic_write_bytes
 
@@ -41,17 +40,15 @@ def main(argv=None) -> dict:
     build_s = time.perf_counter() - start
     frames = sum(s.num_frames for s in scene.sequences.values())
     cameras = scene.intrinsics.shape[0]
-    casts = scene.supersample ** 2 + (scene.supersample % 2 == 0)  # + the centre ray
+    cameras_of_rig = synthetic.rig_cameras(scene.intrinsics, scene.w2c, scene.width)
+    casts = len(raycast.ray_sets(cameras_of_rig[:1], scene.supersample)[0])  # rays per pixel
     rays = frames * cameras * scene.width * scene.height * casts
 
     name = next(iter(scene.sequences))
     verts = np.asarray(flame.lbs(scene.model, scene.sequences[name].params(scene.shapes["A"], 0)))
     embree = raycast.embree_scene(verts, np.asarray(scene.model.faces))
-    batches = []
-    for k, m in zip(scene.intrinsics, scene.w2c):
-        camera = Camera(intrinsics=k, w2c=m, width=scene.width, height=scene.height)
-        o, d = raycast.camera_rays(camera, (0.25, 0.25))
-        batches.append((o.astype(np.float32), d.astype(np.float32)))
+    batches = [tuple(x.astype(np.float32) for x in raycast.camera_rays(c, (0.25, 0.25)))
+               for c in cameras_of_rig]
     with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
         list(pool.map(lambda b: embree.run(*b), batches))
         start = time.perf_counter()

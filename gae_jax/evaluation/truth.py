@@ -22,7 +22,6 @@ import numpy as np
 
 from gae_jax import instructions
 from gae_jax.evaluation import protocols
-from gae_jax.render.camera import Camera
 from gae_jax.scene import raycast, synthetic
 from gae_jax.scene.types import Scene, posed_vertices
 from gae_jax.util.fileio import atomic_write_bytes
@@ -84,10 +83,8 @@ def frames_truth(scene: Scene, protocol: protocols.ProtocolFrames, albedo) -> Ev
     if scene.kind == "synthetic":
         colours = synthetic.shaded_colors(scene.model, albedo, scene.shapes["A"])
         images, regions = [], []
-        rays = raycast.ray_sets([Camera(intrinsics=k, w2c=m, width=scene.width,
-                                        height=scene.height)
-                                 for k, m in zip(scene.intrinsics[cams], scene.w2c[cams])],
-                                scene.supersample)
+        rays = raycast.ray_sets(synthetic.rig_cameras(scene.intrinsics[cams], scene.w2c[cams],
+                                                      scene.width), scene.supersample)
         for name, t in protocol.pairs:
             img, reg = synthetic.render_frame(
                 scene.model, scene.face_regions, colours, scene.shapes["A"],

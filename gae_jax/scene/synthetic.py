@@ -213,6 +213,11 @@ def identity_albedo(model: flame.FlameModel, assets: head.HeadAssets,
 _posed = jax.jit(flame.lbs)  # (one program per head; eager LBS took 30 ms a frame)
 
 
+def rig_cameras(intrinsics, w2c, size: int) -> list:
+    """The rig's cameras, size x size each, from (C, 4) intrinsics and (C, 4, 4) w2c."""
+    return [Camera(intrinsics=k, w2c=m, width=size, height=size) for k, m in zip(intrinsics, w2c)]
+
+
 def render_frame(model, face_regions, vertex_colors, shape, sequence: Sequence, frame: int,
                  intrinsics, w2c, size: int, background, supersample: int = 1,
                  rays: list | None = None):
@@ -227,10 +232,8 @@ def render_frame(model, face_regions, vertex_colors, shape, sequence: Sequence, 
     faces = np.asarray(model.faces)
     images = np.zeros((len(intrinsics), size, size, 3), np.uint8)
     regions = np.zeros((len(intrinsics), size, size), np.int8)
-    cameras = [Camera(intrinsics=k, w2c=m, width=size, height=size)
-               for k, m in zip(intrinsics, w2c)]
-    views = raycast_views(verts, faces, vertex_colors, face_regions, cameras, background,
-                          supersample, rays=rays)
+    views = raycast_views(verts, faces, vertex_colors, face_regions,
+                          rig_cameras(intrinsics, w2c, size), background, supersample, rays=rays)
     for c, out in enumerate(views):
         images[c] = (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8)
         regions[c] = out.regions
@@ -297,8 +300,7 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
         images, regions = {}, {}
         total = sum(s.num_frames for s in sequences.values())
         bar = _progress(total, "ground truth frames", progress)
-        rays = ray_sets([Camera(intrinsics=k, w2c=m, width=size, height=size)
-                         for k, m in zip(intrinsics, w2c)], supersample)
+        rays = ray_sets(rig_cameras(intrinsics, w2c, size), supersample)
         for name, seq in sequences.items():
             per_frame = []
             for t in range(seq.num_frames):
