@@ -8,7 +8,7 @@ from jax.test_util import check_grads
 
 from gae_jax.render import composite as comp
 from gae_jax.render.composite_reference import composite_reference
-from gae_jax.render import splat, wabe
+from gae_jax.render import projection, splat, wabe
 from gae_jax.render.camera import look_at_w2c, make_camera
 from gae_jax.render.projection import project
 from gae_jax.render.tiles import (EXTENT_ABSOLUTE_MARGIN, EXTENT_RELATIVE_MARGIN, bin_gaussians,
@@ -104,8 +104,43 @@ def test_projection_matches_bruteforce_at_our_filter_and_gsplats(x64, dilation):
     np.testing.assert_allclose(np.asarray(p.depths), dep, rtol=1e-12, atol=1e-12)
 
 
+def test_screen_covariance_entries_match_matrix_products_values_and_gradients(x64):
+    """The entry-by-entry 2D covariance against numpy's J W R S S^T R^T W^T J^T."""
+    rng = np.random.default_rng(5)
+    n = 12
+    quats, scales = rng.normal(size=(n, 4)), rng.uniform(0.05, 2.0, (n, 3))
+    rotation = look_at_w2c([0.3, -0.2, -4.0], [0, 0, 0])[:3, :3]
+    jac = rng.normal(size=(4, n))  # J's non-zero entries: xx, yy, xz, yz
+    q = quats / np.linalg.norm(quats, axis=-1, keepdims=True)
+    w, x, y, z = q.T
+    rot = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                    2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                    2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+                   -1).reshape(n, 3, 3)
+    j = np.zeros((n, 2, 3))
+    j[:, 0, 0], j[:, 1, 1], j[:, 0, 2], j[:, 1, 2] = jac
+    m = j @ rotation @ rot @ (scales[:, :, None] * np.eye(3))
+    cov = m @ np.swapaxes(m, -1, -2)
+    got = projection.screen_covariance(jnp.asarray(quats), jnp.asarray(scales),
+                                       jnp.asarray(rotation), *map(jnp.asarray, jac))
+    np.testing.assert_allclose(got, cov[:, [0, 0, 1], [0, 1, 1]], rtol=1e-12, atol=1e-12)
+
+    def entries(qq, ss, jx, jy, jxz, jyz):
+        return projection.screen_covariance(qq, ss, jnp.asarray(rotation), jx, jy, jxz, jyz)
+
+    check_grads(entries, (jnp.asarray(quats), jnp.asarray(scales), *map(jnp.asarray, jac)),
+                order=1, modes=["rev"], eps=1e-6, atol=1e-6, rtol=1e-6)
+
+
+def test_zero_quaternion_is_the_identity_with_finite_gradients():
+    quats = jnp.asarray([[0.0, 0.0, 0.0, 0.0], [1.0, 2.0, 3.0, 4.0]])
+    np.testing.assert_allclose(projection.quat_to_rotmat(quats)[0], np.eye(3), atol=0)
+    weights = jnp.arange(18.0).reshape(2, 3, 3)
+    grads = jax.grad(lambda q: jnp.sum(projection.quat_to_rotmat(q) ** 2 * weights))(quats)
+    assert_tree_finite(grads)
+
+
 def test_projection_default_filter_is_the_module_constant_read_at_trace_time(x64, monkeypatch):
-    from gae_jax.render import projection
     g, camera = random_scene(12, n=10, dtype=np.float64)
     monkeypatch.setattr(projection, "COV2D_DILATION", 0.3)
     wide = projection.project(g.means, g.quats, g.scales, g.opacities, camera)
