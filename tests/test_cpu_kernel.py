@@ -160,6 +160,14 @@ def test_argsort_is_numpys_stable_argsort_with_ties_and_extremes(n):
     np.testing.assert_array_equal(ours, np.argsort(keys, kind="stable"))
 
 
+@pytest.mark.parametrize("low, high", [(1000, 1100), (-300, -200), (7, 8)])
+def test_argsort_of_keys_sharing_bytes_is_numpys_stable_argsort(low, high):
+    """Keys in a narrow range share their high bytes (the radix passes the kernel skips)."""
+    keys = np.random.default_rng(abs(low)).integers(low, high, 20000).astype(np.int32)
+    ours = jax.jit(cpu_kernel.argsort)(jnp.asarray(keys))
+    np.testing.assert_array_equal(ours, np.argsort(keys, kind="stable"))
+
+
 def test_depth_order_is_the_same_with_the_kernel_and_with_lax_sort():
     rng = np.random.default_rng(0)
     depths = jnp.asarray(rng.choice([0.5, 1.0, 2.0, 3.5], 3000) * rng.uniform(1, 1.01, 3000)
