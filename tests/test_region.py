@@ -73,6 +73,24 @@ def test_coverage_is_the_bruteforce_alpha_of_the_selected_gaussians(small):
     np.testing.assert_allclose(cover, expected, atol=1e-4)
 
 
+@pytest.mark.parametrize("blend", ["standard", "wabe_grad"])
+def test_preview_coverage_is_the_bruteforce_alpha_of_the_selected_gaussians(small, blend):
+    """The preview's fused coverage channel (one render instead of preview + coverage) under a
+    blend whose image is the standard one; the image beside it is the plain render."""
+    from gae_jax.edit.step import make_preview
+    from gae_jax.render import wabe
+
+    scene, avatar, rig = small
+    selected = np.asarray(avatar.regions) == head.REGION_ID["lips"]
+    canonical = jnp.zeros((avatar.num, 3))
+    image, _, _, cover = make_preview(wabe.named(blend))(
+        avatar.trainable(), rig, jnp.int32(1), jnp.int32(0), canonical, jnp.asarray(selected))
+    expected = _weights(avatar, rig, 1)[..., selected].sum(-1)
+    np.testing.assert_allclose(np.asarray(cover), expected, atol=1e-4)
+    plain = rigs.render_bound(avatar.trainable(), rig, 0, 1, blend=wabe.standard()).image
+    np.testing.assert_allclose(np.asarray(image), np.asarray(plain), atol=1e-5)
+
+
 def test_selection_is_a_mean_vote_above_one_half():
     votes = np.array([[0.6, 1.0], [0.5, 1.0], [0.0, 0.0], [3.0, 4.0], [1e-9, 1e-9]])
     np.testing.assert_array_equal(region.select(votes), [True, False, False, True, True])

@@ -77,13 +77,14 @@ def write_grid(session: Session, edited: av.Avatar, path: str, key) -> None:
     original = rigs.render_views(render, s.original.trainable(), rig, protocol.cameras)
     ours = rigs.render_views(render, edited.trainable(), rig, protocol.cameras)
     sampler = make_sampler(s)
+    selected = jnp.asarray(sampler.editable())
     region = edit_region.parse_region(s.config.region, s.config.prompt)
     rows = []
     for p, (seq, t) in enumerate(protocol.pairs):
         for k, cam in enumerate(protocol.cameras):
             untouched = original[p, k]
-            _, labels, coords = s.preview(s.original.trainable(), rig, jnp.int32(cam),
-                                          jnp.int32(p), s.canonical)
+            _, labels, coords, _ = s.preview(s.original.trainable(), rig, jnp.int32(cam),
+                                             jnp.int32(p), s.canonical, selected)
             labels = np.asarray(labels)
             edit = np.clip(sampler.editor.edit(
                 untouched, untouched, s.config.prompt, jax.random.fold_in(key, p * 97 + k),

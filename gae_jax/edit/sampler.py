@@ -16,6 +16,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from gae_jax.edit import region as edit_region
 from gae_jax.edit.config import EditConfig
 from gae_jax.edit.editors import make_editor
+from gae_jax.render import wabe
 
 
 def frame_table(scene, pairs):
@@ -99,30 +100,36 @@ class EditSampler:
         return self.scene.images[name][cam, t]
 
     def edit(self, params, cam, row, key):
-        image, regions, coords = self.preview(params, self.rig, jnp.int32(cam), jnp.int32(row),
-                                              self.canonical)
+        image, regions, coords, coverage = self.preview(
+            params, self.rig, jnp.int32(cam), jnp.int32(row), self.canonical,
+            jnp.asarray(self.editable()))
         unedited = self.original_image(cam, row) / 255.0
         context = dict(regions=np.asarray(regions), canonical=np.asarray(coords),
                        view=(cam,) + tuple(self.pairs[row]))
         edited = self.editor.edit(np.asarray(image), unedited, self.config.prompt, key, context)
         edited = np.clip(edited, 0, 1)
         if self.region != ("none",):
-            edited = self.composited(params, cam, row, edited, unedited)
+            edited = self.composited(params, cam, row, edited, unedited, coverage)
         edited = (edited * 255 + 0.5).astype(np.uint8)
         self.cache[(cam, row)] = edited
         return edited
 
-    def composited(self, params, cam, row, edited, unedited):
+    def composited(self, params, cam, row, edited, unedited, preview_coverage):
         """The edit inside the region's soft mask at this view, the unedited image outside;
-        `auto` first votes this edit's change mask into the tracing."""
+        `auto` first votes this edit's change mask into the tracing (which moves the region:
+        its coverage is rendered again after the vote). preview_coverage: (H, W) the preview's
+        coverage of the region, taken when the blend's image is the standard one."""
         c = self.config
         cam_, row_ = jnp.int32(cam), jnp.int32(row)
         if self.region == ("auto",):
             change = edit_region.change_mask(edited, unedited, c.change_threshold)
             self.votes += np.asarray(self.trace(params, self.rig, cam_, row_,
                                                 jnp.asarray(change, jnp.float32)), np.float64)
-        coverage = np.asarray(self.coverage(params, self.rig, cam_, row_,
-                                            jnp.asarray(self.editable())))
+        if self.region != ("auto",) and not wabe.named(c.blend, c.beta).weights_forward:
+            coverage = np.asarray(preview_coverage)
+        else:
+            coverage = np.asarray(self.coverage(params, self.rig, cam_, row_,
+                                                jnp.asarray(self.editable())))
         mask = edit_region.soft_mask(coverage, c.region_dilate, c.region_blur)
         return edit_region.composite(edited, unedited, mask)
 
@@ -153,4 +160,6 @@ class EditSampler:
             neighbours.append(neighbour if neighbour is not None else target)
         return dict(cams=cams.astype(np.int32), frames=rows.astype(np.int32),
                     target=np.stack(targets).astype(np.float32) / 255.0,
-                    neighbour=np.stack(neighbours).astype(np.float32) / 255.0)
+                    neighbour=np.stack(neighbours).astype(np.float32) / 255.0,
+                    window=np.asarray(jax.random.uniform(jax.random.fold_in(k_sample, 2),
+                                                         (c.batch, 2)), np.float32))

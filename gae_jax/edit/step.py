@@ -80,8 +80,10 @@ def make_edit_step(config: StepConfig):
     """A jitted `step(state, rig, batch, editable) -> (state, metrics)`, state donated.
 
     batch: cams (B,) int32, frames (B,) int32 (rows of rig.vertices), target (B, H, W, 3) float
-    (E_t), neighbour (B, H, W, 3) (E_k). editable: (N,) bool, the edit region's Gaussians: the
-    others receive no gradient and no update, so no parameter outside the region moves.
+    (E_t), neighbour (B, H, W, 3) (E_k), window (B, 2) float in [0, 1) (where the
+    discriminator's window sits, `gan.crop_windows`; read only when `gan_crop` cuts).
+    editable: (N,) bool, the edit region's Gaussians: the others receive no gradient and no
+    update, so no parameter outside the region moves.
     """
     disc = gan.Discriminator()
     opt, d_opt = avatar_optimizer(config), discriminator_optimizer(config)
@@ -101,10 +103,16 @@ def make_edit_step(config: StepConfig):
         images, pullback, (visible, visibility) = jax.vjp(render_batch, state.params,
                                                           has_aux=True)
         target, neighbour = batch["target"], batch["neighbour"]
+
+        def discriminated(pairs):
+            pairs = gan.downscale(pairs, config.gan_max_side)
+            if config.gan_crop and max(pairs.shape[-3:-1]) > config.gan_crop:
+                pairs = gan.crop_windows(pairs, batch["window"], config.gan_crop)
+            return pairs
         d_params, d_opt_state = state.d_params, state.d_opt_state
         d_value = jnp.float32(0.0)
         if config.adversarial:
-            real, fake = (gan.downscale(x, config.gan_max_side) for x in gan.make_pairs(
+            real, fake = (discriminated(x) for x in gan.make_pairs(
                 config.pair_mode, target, neighbour, jax.lax.stop_gradient(images)))
 
             def d_objective(p):
@@ -122,7 +130,7 @@ def make_edit_step(config: StepConfig):
             adv = jnp.float32(0.0)
             if config.adversarial:
                 _, fake = gan.make_pairs(config.pair_mode, target, neighbour, imgs)
-                adv = gan.g_loss(disc.apply(d_params, gan.downscale(fake, config.gan_max_side)))
+                adv = gan.g_loss(disc.apply(d_params, discriminated(fake)))
             return config.recon_weight * recon + config.g_weight * adv, (recon, adv)
 
         (_, (recon, adv)), d_images = jax.value_and_grad(image_objective, has_aux=True)(images)
@@ -166,21 +174,26 @@ def _masked(tree: dict, mask) -> dict:
 
 
 def make_preview(blend: wabe.Blend):
-    """Jitted `preview(params, rig, cam, frame, canonical) -> (image (H, W, 3), regions (H, W)
-    int, -1 background, canonical (H, W, 3) head-space positions)` in one composite pass.
+    """Jitted `preview(params, rig, cam, frame, canonical, selected) -> (image (H, W, 3),
+    regions (H, W) int, -1 background, canonical (H, W, 3) head-space positions, coverage
+    (H, W))` in one composite pass.
 
-    canonical: (N, 3) each Gaussian's head-space position (the rest pose)."""
+    canonical: (N, 3) each Gaussian's head-space position (the rest pose); selected: (N,) bool,
+    coverage is their alpha composited among all Gaussians under `blend` (with a blend whose
+    image is the standard one, `region.make_coverage`'s map, without a second render)."""
     num_regions = len(head.REGIONS)
 
     @fast_jit
-    def preview(params, rig: Rig, cam, frame, canonical):
+    def preview(params, rig: Rig, cam, frame, canonical, selected):
         onehot = jax.nn.one_hot(rig.regions, num_regions, dtype=canonical.dtype)
-        out = render_bound(params, rig, frame, cam, blend=blend,
-                           extra_channels=jnp.concatenate([onehot, canonical], -1))
+        extra = jnp.concatenate([onehot, canonical, selected.astype(canonical.dtype)[:, None]],
+                                -1)
+        out = render_bound(params, rig, frame, cam, blend=blend, extra_channels=extra)
         image = out.image[..., :3]
         votes = out.image[..., 3:3 + num_regions]
         regions = jnp.where(out.alpha > 0.5, jnp.argmax(votes, -1), -1)
-        coords = out.image[..., 3 + num_regions:] / jnp.maximum(out.alpha, 1e-6)[..., None]
-        return image, regions, coords
+        coords = (out.image[..., 3 + num_regions:6 + num_regions]
+                  / jnp.maximum(out.alpha, 1e-6)[..., None])
+        return image, regions, coords, out.image[..., 6 + num_regions]
 
     return preview
