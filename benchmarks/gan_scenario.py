@@ -2,7 +2,7 @@
 
     python benchmarks/gan_scenario.py [--head makehuman] [--weights 0 0.01 0.1 1] [--seeds 0 1 2]
                                       [--iterations 100] [--out benchmarks/results/gan_scenario]
-                                      [--only ROW_PREFIX] [--gan-max-side N] [--gan-crop N]
+                                      [--only ROW_PREFIX] [--gan-max-side N]
 
 The scenario where the paper says the GAN matters: the editor is inconsistent with several
 plausible answers, not jitter around one, on the cached default avatar of `--head` (the shipped
@@ -248,8 +248,6 @@ def command_tail(args) -> str:
         tail += f" --only {args.only} --weights {' '.join(f'{w:g}' for w in args.weights)}"
     if args.gan_max_side:
         tail += f" --gan-max-side {args.gan_max_side}"
-    if args.gan_crop:
-        tail += f" --gan-crop {args.gan_crop}"
     if args.out != "benchmarks/results/gan_scenario":
         tail += f" --out {args.out}"
     return tail
@@ -266,8 +264,6 @@ def main():
                         help="run only the rows whose name starts with this (e.g. colour2)")
     parser.add_argument("--gan-max-side", type=int, default=0,
                         help="EditConfig.gan_max_side of every row (0: full resolution)")
-    parser.add_argument("--gan-crop", type=int, default=0,
-                        help="EditConfig.gan_crop of every row (0: the whole pair)")
     args = parser.parse_args()
     scene, original = default_scene_and_avatar(args.head)
     bench = Bench(args.out + ".json")
@@ -284,8 +280,7 @@ def main():
         if not name.startswith(args.only):
             continue
         config = dataclasses.replace(EditConfig(prompt=PROMPT, iterations=args.iterations,
-                                                gan_max_side=args.gan_max_side,
-                                                gan_crop=args.gan_crop), **overrides)
+                                                gan_max_side=args.gan_max_side), **overrides)
         extra: dict = {}
 
         def on_edited(avatar, extra=extra, config=config):

@@ -145,38 +145,9 @@ def test_downscale_is_an_antialiased_triangle_filter():
         np.testing.assert_array_equal(gan.downscale(jnp.asarray(x), cap), x)
 
 
-def test_crop_windows_are_numpy_slices_at_uniformly_spread_corners():
-    """Each pair's window is the plain slice at floor(origin * (H - h + 1, W - w + 1)); origins
-    at the centres of the span's cells hit every corner once (uniform draws: equal odds); a
-    window as large as the image, or side 0, changes nothing; a side beyond one dimension keeps
-    that dimension whole."""
-    rng = np.random.default_rng(2)
-    x = rng.uniform(size=(5, 40, 30, 6)).astype(np.float32)
-    origins = np.array([[0.0, 0.0], [0.999999, 0.999999], [0.5, 0.25], [0.3, 0.7], [0.1, 0.9]],
-                       np.float32)
-    out = np.asarray(gan.crop_windows(jnp.asarray(x), jnp.asarray(origins), 24))
-    assert out.shape == (5, 24, 24, 6)
-    for b, (u, v) in enumerate(origins):
-        top, left = int(np.floor(u * 17)), int(np.floor(v * 7))
-        np.testing.assert_array_equal(out[b], x[b, top:top + 24, left:left + 24])
-    cells = ((np.arange(17) + 0.5) / 17).astype(np.float32)
-    probe = np.broadcast_to(np.arange(40, dtype=np.float32)[None, :, None, None], (17, 40, 30, 1))
-    tops = np.asarray(gan.crop_windows(jnp.asarray(probe),
-                                       jnp.asarray(np.stack([cells, cells], 1)), 24))[:, 0, 0, 0]
-    np.testing.assert_array_equal(tops, np.arange(17))
-    tall = np.asarray(gan.crop_windows(jnp.asarray(x), jnp.asarray(origins), 32))
-    assert tall.shape == (5, 32, 30, 6)
-    np.testing.assert_array_equal(tall[2], x[2, 4:36])  # floor(0.5 * 9) = 4
-    for side in (0, 40, 64):
-        np.testing.assert_array_equal(gan.crop_windows(jnp.asarray(x), origins, side), x)
-
-
-def test_gan_max_side_and_crop_are_checked():
+def test_gan_max_side_is_checked():
     from gae_jax.edit.config import EditConfig
 
     with pytest.raises(ValueError, match="gan_max_side"):
         EditConfig(gan_max_side=gan.MIN_SIZE - 1)
-    with pytest.raises(ValueError, match="gan_crop"):
-        EditConfig(gan_crop=gan.MIN_SIZE - 1)
     assert EditConfig(gan_max_side=256).gan_max_side == 256
-    assert EditConfig(gan_crop=256).gan_crop == 256

@@ -308,7 +308,7 @@ def test_edit_loss_weighs_one_minus_ssim_beside_l1_as_configured(base):
         assert float(metrics["recon"]) == pytest.approx(l1 + weight * one_minus_ssim, rel=1e-4)
 
 
-def _step_d_losses(base, field: str, values, seed: int, window=None):
+def _step_d_losses(base, field: str, values, seed: int):
     """The edit step's discriminator loss with `field` at each of `values`, on one noisy
     (target, neighbour) pair around the render of camera 2, frame 1, with a fresh
     discriminator (the same draw each time). Returns (session, render, target, neighbour,
@@ -321,8 +321,6 @@ def _step_d_losses(base, field: str, values, seed: int, window=None):
     neighbour = np.clip(render + rng.normal(0, 0.1, render.shape), 0, 1)[None].astype(np.float32)
     batch = dict(cams=np.array([2], np.int32), frames=np.array([1], np.int32), target=target,
                  neighbour=neighbour)
-    if window is not None:
-        batch["window"] = window
     editable = np.ones(s.original.num, bool)
     losses = {}
     for value in values:
@@ -351,27 +349,3 @@ def test_discriminator_sees_pairs_at_gan_max_side(base):
     assert losses[48] == pytest.approx(float(expected), rel=1e-4)
     assert losses[0] == losses[SIZE] == pytest.approx(float(full), rel=1e-4)
     assert abs(losses[48] - losses[0]) > 1e-4 * abs(losses[0])
-
-
-def test_discriminator_judges_the_batch_window_at_gan_crop(base):
-    """With `gan_crop` 40 of 96 the step's discriminator loss is that of the real and fake pairs
-    sliced (numpy) at the batch's window, and of no other window; a crop at the image size
-    changes nothing."""
-    from gae_jax.edit import gan
-
-    window = np.array([[0.7, 0.2]], np.float32)  # corner (floor(0.7 * 57), floor(0.2 * 57))
-    s, render, target, neighbour, d_params, losses = _step_d_losses(
-        base, "gan_crop", (0, SIZE, 40), 3, window)
-    real, fake = (np.asarray(x) for x in gan.make_pairs("paper", target, neighbour, render[None]))
-    disc = gan.Discriminator()
-
-    def loss_at(top, left):
-        cut = (slice(None), slice(top, top + 40), slice(left, left + 40))
-        return float(s.config.d_weight * gan.d_loss(disc.apply(d_params, real[cut]),
-                                                    disc.apply(d_params, fake[cut])))
-
-    # A fresh discriminator says ~0.5 everywhere: windows differ in the loss's 5th digit.
-    ours, others = loss_at(39, 11), [loss_at(0, 0), loss_at(39, 12), loss_at(56, 56)]
-    assert abs(losses[40] - ours) < 0.05 * min(abs(o - ours) for o in others)
-    full = s.config.d_weight * gan.d_loss(disc.apply(d_params, real), disc.apply(d_params, fake))
-    assert losses[0] == losses[SIZE] == pytest.approx(float(full), rel=1e-4)

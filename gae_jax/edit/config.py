@@ -67,7 +67,6 @@ class EditConfig:
     optimizer: str = "adam"
     d_lr: float = 1e-4
     gan_max_side: int = 0
-    gan_crop: int = 0
     reconstruct_iterations: int = 600
     checkpoint_every: int = 50
     seed: int = 0
@@ -96,9 +95,6 @@ class EditConfig:
         if self.gan_max_side and self.gan_max_side < gan.MIN_SIZE:
             raise ValueError(f"gan_max_side must be 0 (full resolution) or >= {gan.MIN_SIZE}, "
                              f"got {self.gan_max_side}")
-        if self.gan_crop and self.gan_crop < gan.MIN_SIZE:
-            raise ValueError(f"gan_crop must be 0 (the whole image) or >= {gan.MIN_SIZE}, "
-                             f"got {self.gan_crop}")
         if self.beta < 0:
             raise ValueError(f"beta must be >= 0, got {self.beta}")
         region.parse_region(self.region)
@@ -157,8 +153,6 @@ HELP = {
     "gan_max_side": "longest side in px of the pairs the discriminator sees (resized, "
                     "antialiased; 0 = the render's own): at 512 px its convolutions are most "
                     "of an iteration, at 256 a quarter of that",
-    "gan_crop": "side in px of the random window of each pair the discriminator judges, at "
-                "full resolution (0 = the whole pair): its convolutions cost the window's area",
     "reconstruct_iterations": "steps of the original avatar's reconstruction when no --avatar "
                               "is given (600: teeth 19.7 dB, whole 34.9 against the truth, "
                               "300: 15.4 / 31.8; a new value reconstructs and caches a new "
@@ -214,7 +208,6 @@ class StepConfig:
     optimizer: str
     d_lr: float
     gan_max_side: int
-    gan_crop: int
 
     @classmethod
     def of(cls, config: EditConfig) -> "StepConfig":

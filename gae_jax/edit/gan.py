@@ -84,27 +84,6 @@ def downscale(pairs: jax.Array, max_side: int) -> jax.Array:
                             antialias=True)
 
 
-def crop_windows(pairs: jax.Array, origins: jax.Array, side: int) -> jax.Array:
-    """(B, H, W, C) pairs cut to (B, h, w, C) windows at full resolution, h = min(side, H),
-    w = min(side, W); the b-th window's corner is floor(origins[b] * (H - h + 1, W - w + 1)),
-    origins (B, 2) in [0, 1), so uniform draws give every position equal odds. side 0, or one
-    at least both sides: unchanged. The PatchGAN's loss is a mean over ~70 px patches, which a
-    window estimates at a fraction (h w / H W) of the convolutions, with every patch judged at
-    the render's own scale (`downscale` instead changes the scale the discriminator sees)."""
-    height, width = pairs.shape[-3], pairs.shape[-2]
-    if side <= 0 or (side >= height and side >= width):
-        return pairs
-    h, w = min(side, height), min(side, width)
-    span = jnp.asarray([[height - h + 1, width - w + 1]], jnp.float32)
-    corners = jnp.clip(jnp.floor(origins * span).astype(jnp.int32), 0,
-                       (span - 1).astype(jnp.int32))
-
-    def one(image, corner):
-        return jax.lax.dynamic_slice(image, (corner[0], corner[1], 0), (h, w, image.shape[-1]))
-
-    return jax.vmap(one)(pairs, corners)
-
-
 def make_pairs(mode: str, edit_t: jax.Array, edit_k: jax.Array, render_t: jax.Array):
     """(real, fake) pairs, each (..., H, W, 6), for the given pair `mode`."""
     if mode == "paper":

@@ -160,6 +160,4 @@ class EditSampler:
             neighbours.append(neighbour if neighbour is not None else target)
         return dict(cams=cams.astype(np.int32), frames=rows.astype(np.int32),
                     target=np.stack(targets).astype(np.float32) / 255.0,
-                    neighbour=np.stack(neighbours).astype(np.float32) / 255.0,
-                    window=np.asarray(jax.random.uniform(jax.random.fold_in(k_sample, 2),
-                                                         (c.batch, 2)), np.float32))
+                    neighbour=np.stack(neighbours).astype(np.float32) / 255.0)

@@ -80,8 +80,7 @@ def make_edit_step(config: StepConfig):
     """A jitted `step(state, rig, batch, editable) -> (state, metrics)`, state donated.
 
     batch: cams (B,) int32, frames (B,) int32 (rows of rig.vertices), target (B, H, W, 3) float
-    (E_t), neighbour (B, H, W, 3) (E_k), window (B, 2) float in [0, 1) (where the
-    discriminator's window sits, `gan.crop_windows`; read only when `gan_crop` cuts).
+    (E_t), neighbour (B, H, W, 3) (E_k).
     editable: (N,) bool, the edit region's Gaussians: the others receive no gradient and no
     update, so no parameter outside the region moves.
     """
@@ -105,10 +104,7 @@ def make_edit_step(config: StepConfig):
         target, neighbour = batch["target"], batch["neighbour"]
 
         def discriminated(pairs):
-            pairs = gan.downscale(pairs, config.gan_max_side)
-            if config.gan_crop and max(pairs.shape[-3:-1]) > config.gan_crop:
-                pairs = gan.crop_windows(pairs, batch["window"], config.gan_crop)
-            return pairs
+            return gan.downscale(pairs, config.gan_max_side)
         d_params, d_opt_state = state.d_params, state.d_opt_state
         d_value = jnp.float32(0.0)
         if config.adversarial:
