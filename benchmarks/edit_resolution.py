@@ -1,14 +1,20 @@
 """What one edit iteration costs at 128 / 256 / 512 px (issue 17: <= 1 s at 512).
 
     python benchmarks/edit_resolution.py [--sizes 128 256 512] [--iterations 8]
-                                         [--kernel auto|jax] [--adversarial true|false]
-                                         [--gan-max-side N]
+                                         [--head makehuman|procedural] [--kernel auto|jax]
+                                         [--variants full max256 no_gan]
                                          [--out benchmarks/results/edit_resolution.json]
 
-The default scene's cameras and training images are scaled to each size (intrinsics x s, images
-resized bilinearly, region labels by nearest neighbour) and the default edit (README's main
-command: semantic editor, lips region) runs on the default reconstruction. Per size, after two
-warm-up iterations (compilation), the median over `--iterations` of
+The scene of `--head` (the CLI's default head by default) has its cameras and training images
+scaled to each size (intrinsics x s, images resized bilinearly, region labels by nearest
+neighbour) and the default edit (README's main command: semantic editor, lips region) runs on
+the cached default reconstruction. Variants of the step, all timed in one process with their
+iterations interleaved (so the machine's drift hits them alike):
+  * full: the default config (the discriminator judges the whole pair);
+  * maxN: `gan_max_side=N` (the pairs resized to at most N px);
+  * no_gan: `adversarial=False`.
+Per size and variant, after two warm-up iterations (compilation), the median over
+`--iterations` of
   * host: `EditSampler.batch` (the preview render on device, the 2D edit and the region
     composite on the host);
   * step: the jitted, donated edit step (render, losses, backward, Adam), blocked on;
@@ -23,7 +29,21 @@ import dataclasses
 import json
 import os
 import statistics
+import sys
 import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+
+def variant_overrides(name: str) -> dict:
+    """EditConfig overrides of a variant name (see the module docstring)."""
+    if name == "full":
+        return {}
+    if name == "no_gan":
+        return dict(adversarial=False)
+    if name.startswith("max") and name[3:].isdigit():
+        return dict(gan_max_side=int(name[3:]))
+    raise ValueError(f"unknown variant {name!r}: full, no_gan or maxN")
 
 
 def scaled_scene(scene, size: int):
@@ -44,8 +64,8 @@ def scaled_scene(scene, size: int):
                                width=size, height=size, images=images, regions=regions)
 
 
-def time_size(scene, original, size: int, iterations: int, adversarial: bool = True,
-              gan_max_side: int = 0) -> dict:
+def time_size(scene, original, size: int, iterations: int, variants: list) -> list:
+    """One record per variant at `size`, their iterations interleaved."""
     import jax
     import jax.numpy as jnp
 
@@ -53,61 +73,62 @@ def time_size(scene, original, size: int, iterations: int, adversarial: bool = T
     from gae_jax.edit.config import EditConfig
     from gae_jax.edit.sampler import put_batch
 
-    config = EditConfig(adversarial=adversarial, gan_max_side=gan_max_side)
-    session = edit.setup(config, scaled_scene(scene, size), original)
-    state = edit.fresh_state(session)
-    sampler = edit.make_sampler(session)
+    sized = scaled_scene(scene, size)
+    runs = []
+    for name in variants:
+        session = edit.setup(EditConfig(**variant_overrides(name)), sized, original)
+        runs.append(dict(name=name, session=session, state=edit.fresh_state(session),
+                         sampler=edit.make_sampler(session), host=[], step=[]))
     key = jax.random.PRNGKey(0)
-    host, step = [], []
     for i in range(iterations + 2):
-        start = time.perf_counter()
-        batch = put_batch(sampler.batch(state.params, i, key), None)
-        editable = jnp.asarray(sampler.editable())
-        middle = time.perf_counter()
-        state, metrics = session.step(state, session.rig, batch, editable)
-        jax.block_until_ready(metrics)
-        end = time.perf_counter()
-        if i >= 2:
-            host.append(middle - start)
-            step.append(end - middle)
-    return dict(size=size, host_s=round(statistics.median(host), 3),
-                step_s=round(statistics.median(step), 3),
-                iteration_s=round(statistics.median([a + b for a, b in zip(host, step)]), 3),
-                tile_capacity=int(session.rig.tile_capacity))
+        for run in runs:
+            session, sampler = run["session"], run["sampler"]
+            start = time.perf_counter()
+            batch = put_batch(sampler.batch(run["state"].params, i, key), None)
+            editable = jnp.asarray(sampler.editable())
+            middle = time.perf_counter()
+            run["state"], metrics = session.step(run["state"], session.rig, batch, editable)
+            jax.block_until_ready(metrics)
+            end = time.perf_counter()
+            if i >= 2:
+                run["host"].append(middle - start)
+                run["step"].append(end - middle)
+    return [dict(size=size, variant=run["name"], host_s=round(statistics.median(run["host"]), 3),
+                 step_s=round(statistics.median(run["step"]), 3),
+                 iteration_s=round(statistics.median(
+                     [a + b for a, b in zip(run["host"], run["step"])]), 3),
+                 tile_capacity=int(run["session"].rig.tile_capacity)) for run in runs]
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", nargs="+", type=int, default=[128, 256, 512])
     parser.add_argument("--iterations", type=int, default=8)
+    parser.add_argument("--head", choices=("makehuman", "procedural"), default="makehuman")
+    parser.add_argument("--variants", nargs="+", default=["full", "max256", "no_gan"],
+                        help="step variants timed side by side: full, no_gan, maxN")
     parser.add_argument("--out", default="benchmarks/results/edit_resolution.json")
-    parser.add_argument("--adversarial", default="true", choices=["true", "false"],
-                        help="the temporal GAN in the step (the default edit has it)")
-    parser.add_argument("--gan-max-side", type=int, default=0,
-                        help="longest side of the discriminator's pairs (EditConfig."
-                             "gan_max_side; 0 = the render's own)")
     parser.add_argument("--kernel", default="auto", choices=["auto", "jax"],
                         help="the renderer's compositor and depth sort: the C++ kernels where "
                              "built (auto) or pure JAX")
     args = parser.parse_args()
+    for name in args.variants:
+        variant_overrides(name)
     from gae_jax.render import splat
 
     # Benchmark-only: every render of this process takes the chosen path.
     splat.render.__kwdefaults__["kernel"] = args.kernel
-    from gae_jax import train
-    from gae_jax.edit.config import EditConfig
-    from gae_jax.scene import synthetic
+    from editbench import default_scene_and_avatar
     from gae_jax.util.fileio import atomic_write_bytes
 
-    scene = synthetic.make_synthetic_scene(progress=False)
-    original = train.original_avatar(scene, EditConfig().reconstruct_iterations, progress=False)
+    scene, original = default_scene_and_avatar(args.head)
     results = []
     for size in args.sizes:
-        results.append(time_size(scene, original, size, args.iterations,
-                                 args.adversarial == "true", args.gan_max_side))
-        print(json.dumps(results[-1]), flush=True)
-    result = dict(target_512_s=1.0, kernel=args.kernel, adversarial=args.adversarial == "true",
-                  gan_max_side=args.gan_max_side, results=results)
+        for record in time_size(scene, original, size, args.iterations, args.variants):
+            results.append(record)
+            print(json.dumps(record), flush=True)
+    result = dict(target_512_s=1.0, kernel=args.kernel, head=args.head,
+                  gaussians=int(original.num), variants=args.variants, results=results)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     atomic_write_bytes(args.out, json.dumps(result, indent=1).encode())
     print(json.dumps(result))
