@@ -6,6 +6,7 @@ import dataclasses
 import json
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -92,10 +93,27 @@ def test_auto_region_traces_the_edited_lips_and_resumes_with_its_votes(base, tmp
 
 
 def test_step_compiles_once(base):
+    """One compilation of the step, and one of the preview and of the view renderer for rigs
+    of every length (the edit's, the grid's 3 frames, one frame)."""
     s = session_for(base, iterations=3)
     edit.edit_avatar(s)
     assert s.step._cache_size() == 1
-    assert s.preview._cache_size() == 1
+    render = rigs.make_view_renderer(s.step_config.blend)
+    ed = jnp.asarray(np.ones(s.original.num, bool))
+    params = s.original.trainable()
+    images = []
+    for rig in (s.rig, rigs.with_vertices(s.rig, np.asarray(s.rig.vertices)[[2, 0, 1]]),
+                rigs.with_vertices(s.rig, np.asarray(s.rig.vertices)[1:2])):
+        frame = jnp.int32(0 if rig.vertices.shape[0] == 1 else 1)
+        images.append((np.asarray(s.preview(params, rig, jnp.int32(2), frame, s.canonical,
+                                            ed)[0]),
+                       np.asarray(render(params, rig, frame, jnp.int32(2)))))
+    assert s.preview.jitted._cache_size() == 1
+    assert render.jitted._cache_size() == 1
+    # Frame 1 of the first rig, frame 1 (the original 0) of the second, 0 of the third.
+    np.testing.assert_array_equal(images[0][0], images[2][0])
+    np.testing.assert_array_equal(images[0][1], images[2][1])
+    assert np.abs(images[0][1] - images[1][1]).max() > 1e-3
 
 
 def test_resume_after_interruption_equals_the_uninterrupted_run(base, tmp_path):

@@ -20,7 +20,7 @@ from gae_jax.edit.config import StepConfig
 from gae_jax.model import head
 from gae_jax.model.avatar import TRAINABLE
 from gae_jax.render import losses, wabe
-from gae_jax.scene.rig import Rig, render_bound
+from gae_jax.scene.rig import Rig, one_frame, render_bound
 from gae_jax.util.compile import fast_jit
 
 MOUTH_REGIONS = ("teeth", "mouth")  # excluded from the released code's gradient mask
@@ -180,11 +180,11 @@ def make_preview(blend: wabe.Blend):
     num_regions = len(head.REGIONS)
 
     @fast_jit
-    def preview(params, rig: Rig, cam, frame, canonical, selected):
+    def preview_frame(params, rig: Rig, cam, canonical, selected):
         onehot = jax.nn.one_hot(rig.regions, num_regions, dtype=canonical.dtype)
         extra = jnp.concatenate([onehot, canonical, selected.astype(canonical.dtype)[:, None]],
                                 -1)
-        out = render_bound(params, rig, frame, cam, blend=blend, extra_channels=extra)
+        out = render_bound(params, rig, 0, cam, blend=blend, extra_channels=extra)
         image = out.image[..., :3]
         votes = out.image[..., 3:3 + num_regions]
         regions = jnp.where(out.alpha > 0.5, jnp.argmax(votes, -1), -1)
@@ -192,4 +192,8 @@ def make_preview(blend: wabe.Blend):
                   / jnp.maximum(out.alpha, 1e-6)[..., None])
         return image, regions, coords, out.image[..., 6 + num_regions]
 
+    def preview(params, rig: Rig, cam, frame, canonical, selected):
+        return preview_frame(params, one_frame(rig, frame), cam, canonical, selected)
+
+    preview.jitted = preview_frame  # compiled once for rigs of any length (`rig.one_frame`)
     return preview
