@@ -84,6 +84,10 @@ class EditSampler:
         self.spots = [(int(cam), row) for row in range(len(pairs))
                       for cam in scene.train_cameras]
         self.region = edit_region.parse_region(config.region, config.prompt)
+        # The preview's coverage is the region's map when the region is fixed and the blend's
+        # image is the standard one; `auto` moves after each vote, WABE weighs the image.
+        self.preview_covers = (self.region != ("auto",)
+                               and not wabe.named(config.blend, config.beta).weights_forward)
         self.trace, self.coverage = region_fns
         labels = np.asarray(rig.regions)
         self.votes = np.zeros((len(labels), 2))
@@ -125,7 +129,7 @@ class EditSampler:
             change = edit_region.change_mask(edited, unedited, c.change_threshold)
             self.votes += np.asarray(self.trace(params, self.rig, cam_, row_,
                                                 jnp.asarray(change, jnp.float32)), np.float64)
-        if self.region != ("auto",) and not wabe.named(c.blend, c.beta).weights_forward:
+        if self.preview_covers:
             coverage = np.asarray(preview_coverage)
         else:
             coverage = np.asarray(self.coverage(params, self.rig, cam_, row_,

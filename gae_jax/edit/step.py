@@ -80,9 +80,8 @@ def make_edit_step(config: StepConfig):
     """A jitted `step(state, rig, batch, editable) -> (state, metrics)`, state donated.
 
     batch: cams (B,) int32, frames (B,) int32 (rows of rig.vertices), target (B, H, W, 3) float
-    (E_t), neighbour (B, H, W, 3) (E_k).
-    editable: (N,) bool, the edit region's Gaussians: the others receive no gradient and no
-    update, so no parameter outside the region moves.
+    (E_t), neighbour (B, H, W, 3) (E_k). editable: (N,) bool, the edit region's Gaussians: the
+    others receive no gradient and no update, so no parameter outside the region moves.
     """
     disc = gan.Discriminator()
     opt, d_opt = avatar_optimizer(config), discriminator_optimizer(config)
@@ -102,13 +101,10 @@ def make_edit_step(config: StepConfig):
         images, pullback, (visible, visibility) = jax.vjp(render_batch, state.params,
                                                           has_aux=True)
         target, neighbour = batch["target"], batch["neighbour"]
-
-        def discriminated(pairs):
-            return gan.downscale(pairs, config.gan_max_side)
         d_params, d_opt_state = state.d_params, state.d_opt_state
         d_value = jnp.float32(0.0)
         if config.adversarial:
-            real, fake = (discriminated(x) for x in gan.make_pairs(
+            real, fake = (gan.downscale(x, config.gan_max_side) for x in gan.make_pairs(
                 config.pair_mode, target, neighbour, jax.lax.stop_gradient(images)))
 
             def d_objective(p):
@@ -126,7 +122,7 @@ def make_edit_step(config: StepConfig):
             adv = jnp.float32(0.0)
             if config.adversarial:
                 _, fake = gan.make_pairs(config.pair_mode, target, neighbour, imgs)
-                adv = gan.g_loss(disc.apply(d_params, discriminated(fake)))
+                adv = gan.g_loss(disc.apply(d_params, gan.downscale(fake, config.gan_max_side)))
             return config.recon_weight * recon + config.g_weight * adv, (recon, adv)
 
         (_, (recon, adv)), d_images = jax.value_and_grad(image_objective, has_aux=True)(images)
