@@ -3,6 +3,8 @@ autodiff of the dense reference: values, VJPs, statistics, WABE modes, overflowi
 and the dispatch (kernel for float32 on CPU; pure JAX for float64, kernel="jax", or no kernel);
 the argsort against numpy's stable argsort."""
 
+import types
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -71,6 +73,46 @@ def test_kernel_matches_pure_jax_values_stats_and_vjp(blend, front):
         scale = float(jnp.max(jnp.abs(g_ref)))
         assert scale > 1.0
         np.testing.assert_allclose(g_ours, g_ref, atol=GRADIENT_RELATIVE_TOLERANCE * scale)
+
+
+@pytest.mark.parametrize("blend", BLENDS, ids=lambda b: b.mode)
+def test_row_culling_keeps_every_pixel_a_gaussian_reaches(blend):
+    """The kernel walks only the rows of a tile where a Gaussian's alpha can reach 1/255.
+    Hand-built Gaussians probe that bound: thin rotated ellipses whose reach ends near row and
+    tile borders, opacities from just above 1/255 to 0.99, one below 1/255 (no row), and an
+    indefinite conic (q < 0 somewhere: every row kept). Every tile lists every Gaussian; values,
+    pixel counts and VJP against the pure-JAX walk, which evaluates every pixel."""
+    rng = np.random.default_rng(4)
+    n = 40
+    angle = rng.uniform(0, np.pi, n)
+    # sigma across 0.3-1.5 px, along 2-12 px
+    across, along = rng.uniform(0.3, 1.5, n), rng.uniform(2.0, 12.0, n)
+    rot = np.stack([np.cos(angle), np.sin(angle), -np.sin(angle), np.cos(angle)], -1)
+    rot = rot.reshape(n, 2, 2)
+    cov = rot @ (np.eye(2) * np.stack([along, across], -1)[:, None, :] ** 2) @ np.swapaxes(rot, 1, 2)
+    conic = np.linalg.inv(cov)
+    opacity = np.concatenate([[1.02 / 255, 1.2 / 255, 0.9 / 255], rng.uniform(0.05, 0.99, n - 3)])
+    # centres near tile rows' borders (16 px) and pixel centres
+    centre = np.stack([rng.uniform(2, 30, n), 16 + rng.choice([-8.5, -0.5, 0.0, 0.49, 7.9], n)
+                       + rng.uniform(-0.02, 0.02, n)], -1)
+    packed = np.concatenate([centre, conic[:, 0, 0:1], conic[:, 0, 1:2], conic[:, 1, 1:2],
+                             opacity[:, None], rng.uniform(1, 2, (n, 1)),
+                             rng.uniform(0, 1, (n, 3))], -1)
+    packed[0, 2:5] = [0.5, 1.0, 0.5]  # indefinite: q < 0 off its axes
+    table = np.tile(np.arange(n, dtype=np.int32), (4, 1))
+    bins = types.SimpleNamespace(table=jnp.asarray(table), kept=jnp.full((4,), n, jnp.int32))
+    paths = both_paths(blend, dict(tiles_x=2, tiles_y=2), bins,
+                       jnp.asarray(packed, jnp.float32))
+    (ours, ours_vjp), (ref, ref_vjp) = paths["auto"], paths["jax"]
+    for a, b in zip(ours[:3], ref[:3]):
+        np.testing.assert_allclose(a, b, atol=VALUE_TOLERANCE)
+    np.testing.assert_array_equal(ours[3][0], ref[3][0])
+    assert float(jnp.min(ours[1])) < 0.5  # the tiles are well covered
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+    cot = tuple(jax.random.normal(k, o.shape) for k, o in zip(keys, ours[:3]))
+    (g_ours,), (g_ref,) = ours_vjp(cot), ref_vjp(cot)
+    scale = float(jnp.max(jnp.abs(g_ref)))
+    np.testing.assert_allclose(g_ours, g_ref, atol=GRADIENT_RELATIVE_TOLERANCE * scale)
 
 
 @pytest.mark.parametrize("blend", BLENDS, ids=lambda b: b.mode)

@@ -52,6 +52,28 @@ def _load() -> str | None:
     return None
 
 
+@functools.cache
+def _library() -> ctypes.CDLL | None:
+    spec = importlib.util.find_spec(MODULE)
+    return None if _load() is not None else ctypes.CDLL(spec.origin)
+
+
+def exp_rate(threads: int = 0, rounds: int = 100_000, repeats: int = 3) -> float:
+    """The compositor's own exp (the kernel's `fast_exp`, at its SIMD width) in evaluations per
+    second on `threads` workers (0: every hardware thread), best of `repeats` runs of `rounds`
+    x 256 per worker: the arithmetic bound of a compositor that needs one exp per (pixel,
+    Gaussian) pair, measured with the kernel's own code and flags."""
+    _require()
+    probe = _library().GaeExpRate
+    probe.restype = ctypes.c_double
+    probe.argtypes = [ctypes.c_int32, ctypes.c_int64, ctypes.POINTER(ctypes.c_float)]
+    checksum = ctypes.c_float()
+    rates = [probe(threads, rounds, ctypes.byref(checksum)) for _ in range(repeats)]
+    if not np.isfinite(checksum.value):
+        raise RuntimeError("the exp probe's results are not finite")
+    return max(rates)
+
+
 def available() -> bool:
     """True when the kernel is built and registered with XLA's CPU backend."""
     return _load() is None
