@@ -16,6 +16,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import importlib.util
+import time
 
 import jax
 import jax.numpy as jnp
@@ -58,17 +59,22 @@ def _library() -> ctypes.CDLL | None:
     return None if _load() is not None else ctypes.CDLL(spec.origin)
 
 
-def exp_rate(threads: int = 0, rounds: int = 100_000, repeats: int = 3) -> float:
+def exp_rate(threads: int = 0, rounds: int = 100_000, repeats: int = 5,
+             pause_s: float = 0.2) -> float:
     """The compositor's own exp (the kernel's `fast_exp`, at its SIMD width) in evaluations per
     second on `threads` workers (0: every hardware thread), best of `repeats` runs of `rounds`
-    x 256 per worker: the arithmetic bound of a compositor that needs one exp per (pixel,
-    Gaussian) pair, measured with the kernel's own code and flags."""
+    x 256 per worker, `pause_s` apart: the arithmetic bound of a compositor that needs one exp
+    per (pixel, Gaussian) pair, measured with the kernel's own code and flags. (Right after
+    other work, thread pools still spinning on a core can halve a single run.)"""
     _require()
     probe = _library().GaeExpRate
     probe.restype = ctypes.c_double
     probe.argtypes = [ctypes.c_int32, ctypes.c_int64, ctypes.POINTER(ctypes.c_float)]
     checksum = ctypes.c_float()
-    rates = [probe(threads, rounds, ctypes.byref(checksum)) for _ in range(repeats)]
+    rates = []
+    for _ in range(repeats):
+        time.sleep(pause_s)
+        rates.append(probe(threads, rounds, ctypes.byref(checksum)))
     if not np.isfinite(checksum.value):
         raise RuntimeError("the exp probe's results are not finite")
     return max(rates)
