@@ -99,6 +99,8 @@ def test_step_compiles_once(base):
     edit.edit_avatar(s)
     assert s.step._cache_size() == 1
     render = rigs.make_view_renderer(s.step_config.blend)
+    # one renderer per blend and process (lru_cache): other tests may have compiled it already
+    compiled_before = render.jitted._cache_size()
     ed = jnp.asarray(np.ones(s.original.num, bool))
     params = s.original.trainable()
     images = []
@@ -109,7 +111,7 @@ def test_step_compiles_once(base):
                                             ed)[0]),
                        np.asarray(render(params, rig, frame, jnp.int32(2)))))
     assert s.preview.jitted._cache_size() == 1
-    assert render.jitted._cache_size() == 1
+    assert render.jitted._cache_size() - compiled_before <= 1
     # Frame 1 of the first rig, frame 1 (the original 0) of the second, 0 of the third.
     np.testing.assert_array_equal(images[0][0], images[2][0])
     np.testing.assert_array_equal(images[0][1], images[2][1])
