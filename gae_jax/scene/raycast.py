@@ -66,10 +66,11 @@ def embree_scene(vertices, faces):
     return scene
 
 
-def _first_hits(scene, faces, colors, origins, dirs, background, shade=True):
+def _first_hits(scene, face_colors, origins, dirs, background, shade=True):
     """Face (N,) int64 (-1 = miss), distance along the ray (N,) float64 (inf at a miss) and, when
     `shade`, colour (N, 3) float64: the vertex colours interpolated with embree's barycentrics
-    (u, v of the hit point p = (1 - u - v) a + u b + v c)."""
+    (u, v of the hit point p = (1 - u - v) a + u b + v c). face_colors: (F, 3, 3) float64, the
+    colours of each face's corners."""
     hits = scene.run(np.ascontiguousarray(origins, np.float32),
                      np.ascontiguousarray(dirs, np.float32), output=1)
     face_of = hits["primID"].astype(np.int64)
@@ -82,7 +83,7 @@ def _first_hits(scene, faces, colors, origins, dirs, background, shade=True):
         u, v = hits["u"][hit].astype(np.float64), hits["v"][hit].astype(np.float64)
         bary = np.clip(np.stack([1 - u - v, u, v], -1), 0, 1)
         bary /= bary.sum(-1, keepdims=True)
-        image[hit] = np.einsum("nk,nkc->nc", bary, colors[faces[face_of[hit]]])
+        image[hit] = np.einsum("nk,nkc->nc", bary, face_colors[face_of[hit]])
     return face_of, distance, image
 
 
@@ -124,9 +125,10 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
     if len(rays) != len(cameras):
         raise ValueError(f"rays holds {len(rays)} cameras' rays for {len(cameras)} cameras")
     scene = embree_scene(vertices, faces)
+    face_colors = colors[faces]
 
     def view(args):
-        return _view(scene, faces, colors, regions, *args, background, supersample)
+        return _view(scene, face_colors, regions, *args, background, supersample)
 
     workers = workers or os.cpu_count() or 1
     if workers == 1 or len(cameras) == 1:
@@ -135,13 +137,13 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
         return list(pool.map(view, zip(cameras, rays)))
 
 
-def _view(scene, faces, colors, regions, camera, rays, background, supersample):
+def _view(scene, face_colors, regions, camera, rays, background, supersample):
     """One camera's RaycastImage: colour from `supersample`^2 stratified rays per pixel; face,
     region and depth from the centre ray (whose colour is one of the samples when the count is
     odd and is not computed when it is even)."""
     origins, dirs = rays[(0.5, 0.5)]
     centre_is_sample = supersample % 2 == 1
-    face_of, distance, centre = _first_hits(scene, faces, colors, origins, dirs, background,
+    face_of, distance, centre = _first_hits(scene, face_colors, origins, dirs, background,
                                             shade=centre_is_sample)
     if supersample == 1:
         image = centre
@@ -153,7 +155,7 @@ def _view(scene, faces, colors, regions, camera, rays, background, supersample):
                 if ox == oy == 0.5:
                     image += centre
                     continue
-                image += _first_hits(scene, faces, colors, *rays[(float(ox), float(oy))],
+                image += _first_hits(scene, face_colors, *rays[(float(ox), float(oy))],
                                      background)[2]
         image /= supersample ** 2
     w2c = np.asarray(camera.w2c, np.float64)
