@@ -114,6 +114,7 @@ def kernel_grad(x: jax.Array, g: jax.Array, stride: int) -> jax.Array:
         taps = [jnp.einsum("bhwc,bhwo->co", bordered[:, span(ky, rows), span(kx, cols)], g)
                 for ky in range(KERNEL) for kx in range(KERNEL)]
         return jnp.stack(taps).reshape(KERNEL, KERNEL, x.shape[-1], 1)
+    # the convolution is linear in the kernel: any point serves to linearise it
     kernel = jnp.zeros((KERNEL, KERNEL, x.shape[-1], g.shape[-1]), g.dtype)
     _, pullback = jax.vjp(lambda k: _forward(x, k, stride), kernel)
     return pullback(g)[0]

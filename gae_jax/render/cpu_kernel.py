@@ -32,11 +32,12 @@ PIXELS_PER_TILE = 256
 
 
 @functools.cache
-def _load() -> str | None:
-    """Loads and registers the kernel once per process; None on success, else why not."""
+def _open() -> tuple:
+    """Loads and registers the kernel once per process: (the library, None) on success, else
+    (None, why not)."""
     spec = importlib.util.find_spec(MODULE)
     if spec is None or not spec.origin:
-        return "not built (reinstall with `pip install -e .` and a C++17 compiler)"
+        return None, "not built (reinstall with `pip install -e .` and a C++17 compiler)"
     try:
         library = ctypes.CDLL(spec.origin)
         jax.ffi.register_ffi_target(FORWARD_TARGET, jax.ffi.pycapsule(library.GaeCompositeForward),
@@ -49,14 +50,13 @@ def _load() -> str | None:
         jax.ffi.register_ffi_target(BIN_TARGET, jax.ffi.pycapsule(library.GaeBinTiles),
                                     platform="cpu")
     except (OSError, AttributeError, RuntimeError, ValueError) as error:
-        return f"{spec.origin} did not load: {error}"
-    return None
+        return None, f"{spec.origin} did not load: {error}"
+    return library, None
 
 
-@functools.cache
-def _library() -> ctypes.CDLL | None:
-    spec = importlib.util.find_spec(MODULE)
-    return None if _load() is not None else ctypes.CDLL(spec.origin)
+def _load() -> str | None:
+    """None when the kernel is loaded and registered, else why not."""
+    return _open()[1]
 
 
 def exp_rate(threads: int = 0, rounds: int = 100_000, repeats: int = 5,
@@ -67,7 +67,7 @@ def exp_rate(threads: int = 0, rounds: int = 100_000, repeats: int = 5,
     per (pixel, Gaussian) pair, measured with the kernel's own code and flags. (Right after
     other work, thread pools still spinning on a core can halve a single run.)"""
     _require()
-    probe = _library().GaeExpRate
+    probe = _open()[0].GaeExpRate
     probe.restype = ctypes.c_double
     probe.argtypes = [ctypes.c_int32, ctypes.c_int64, ctypes.POINTER(ctypes.c_float)]
     checksum = ctypes.c_float()
