@@ -30,12 +30,12 @@ import sys
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from editbench import fmt, write_report  # noqa: E402
+from oracle import recoloured  # noqa: E402
 
 from gae_jax.edit.config import preset  # noqa: E402
 from gae_jax.evaluation import protocols, score, truth  # noqa: E402
@@ -107,19 +107,6 @@ def reconstruction(name: str, scene, base: av.Avatar):
     return fitted, round(time.perf_counter() - start, 1)
 
 
-def recoloured(scene, avatar: av.Avatar) -> av.Avatar:
-    """`avatar` with the region's colours times the ideal-to-unedited albedo ratio of their
-    face (mean over its vertices); plain RGB colours."""
-    _, ideal = truth.ideal_albedo(scene, PROMPT)
-    faces = np.asarray(scene.model.faces)
-    ratio = (ideal / np.maximum(scene.albedo["A"], 1e-3))[faces[np.asarray(avatar.binding)]]
-    ratio = ratio.mean(axis=1)
-    inside = np.asarray(avatar.regions) == head.REGION_ID[REGION]
-    colors = np.asarray(avatar.colors).copy()
-    colors[inside] = np.clip(colors[inside] * ratio[inside], 0.0, 1.0)
-    return avatar.with_params(dict(avatar.trainable(), colors=jnp.asarray(colors)))
-
-
 def mean_psnr(evaluation: dict, who: str, region: str) -> float:
     return round(float(np.mean([evaluation[p][who]["psnr"][region]
                                 for p in protocols.PROTOCOLS])), 2)
@@ -160,7 +147,7 @@ def main(argv=None) -> int:
         avatar, seconds = reconstruction(name, scene, base)
         capacity = rigs.put_rig(scene, avatar,
                                 posed_vertices(scene, training_frames(scene))).tile_capacity
-        ours = score.evaluate_avatars(edited_truth, recoloured(scene, avatar), avatar, capacity)
+        ours = score.evaluate_avatars(edited_truth, recoloured(scene, avatar, PROMPT), avatar, capacity)
         plain = score.evaluate_avatars(unedited_truth, avatar, avatar, capacity)
         results[name] = dict(
             gaussians=int(avatar.num), fit_seconds=seconds, tile_capacity=capacity,

@@ -32,7 +32,7 @@ from gae_jax.edit.config import EditConfig
 from gae_jax.edit.editors import make_editor
 from gae_jax.evaluation import clip_score, report, score, truth
 from gae_jax.fit.config import ReconstructConfig
-from gae_jax.fit.fit import fit
+from gae_jax.fit.fit import RECONSTRUCTION_VERSION, fit
 from gae_jax.model import avatar_io
 from gae_jax.render import projection
 from gae_jax.scene.load import SCENE_HELP, SceneConfig, load_scene
@@ -40,12 +40,14 @@ from gae_jax.scene.synthetic import scene_fingerprint
 from gae_jax.util.fileio import PlyError, atomic_write_bytes, cache_root
 
 
-def original_avatar(scene, iterations: int, progress: bool):
-    """The reconstruction of the scene's identity A, from the cache or fitted now (then cached).
-    The cache key covers the scene's ground truth, every reconstruction setting and the
-    renderer's screen filter."""
-    config = ReconstructConfig(iterations=iterations)
-    key = dict(dataclasses.asdict(config), cov2d_dilation=projection.COV2D_DILATION)
+def original_avatar(scene, iterations: int, progress: bool, **settings):
+    """The reconstruction of the scene's identity A with `iterations` steps and any other
+    `ReconstructConfig` settings, from the cache or fitted now (then cached). The cache key
+    covers the scene's ground truth, every reconstruction setting and the renderer's screen
+    filter."""
+    config = ReconstructConfig(iterations=iterations, **settings)
+    key = dict(dataclasses.asdict(config), cov2d_dilation=projection.COV2D_DILATION,
+               version=RECONSTRUCTION_VERSION)
     settings = hashlib.sha256(json.dumps(key, sort_keys=True).encode())
     path = os.path.join(cache_root(), f"avatar-{scene_fingerprint(scene)}-"
                                      f"{settings.hexdigest()[:12]}.ply")

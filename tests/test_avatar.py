@@ -168,3 +168,21 @@ def test_deform_vmaps_over_frames(x64):
         single = av.deform(a, frames[i], faces)
         np.testing.assert_allclose(batched.means[i], single.means, atol=1e-12)
         np.testing.assert_allclose(batched.quats[i], single.quats, atol=1e-12)
+
+
+def test_vertex_normals_match_trimesh_and_gaussian_normals_average_their_face():
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    verts = np.asarray(sphere.vertices) * np.array([1.0, 0.7, 1.3])
+    faces = np.asarray(sphere.faces)
+    mine = av.vertex_normals(verts, faces)
+    mesh = trimesh.Trimesh(verts, faces, process=False)
+    # trimesh's mean of the adjacent faces' normals, each weighted by the face's area
+    theirs = trimesh.geometry.mean_vertex_normals(
+        len(verts), faces, mesh.face_normals * mesh.area_faces[:, None])
+    np.testing.assert_allclose(mine, theirs, atol=1e-9)
+    binding = np.array([0, 5, 5, 17])
+    expected = mine[faces[binding]].mean(1)
+    expected /= np.linalg.norm(expected, axis=1, keepdims=True)
+    np.testing.assert_allclose(av.gaussian_normals(binding, verts, faces), expected, atol=1e-6)

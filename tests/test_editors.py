@@ -64,10 +64,12 @@ def test_bleed_spills_over_the_outline_and_into_what_the_region_hides():
     key, ctx = jax.random.PRNGKey(0), dict(regions=regions)
     plain = make_editor("semantic", keeps="original").edit(image, image, "turn the lips blue",
                                                            key, ctx)
-    bleed = 2
-    out = make_editor("semantic", keeps="original", bleed=bleed).edit(
+    out = make_editor("semantic", keeps="original", bleed=8).edit(
         image, image, "turn the lips blue", key, ctx)
     lips = regions == LIPS
+    # bleed scales with the region's size: the 4 x 6 px lips' widest inscribed disk is 4 px
+    bleed = 8 * semantic.thickness(lips) / semantic.FULL_SIZE_THICKNESS
+    assert semantic.thickness(lips) == pytest.approx(4.0)
     np.testing.assert_array_equal(out[lips], plain[lips])
     # Brute force: Euclidean distance of every pixel to the nearest lips pixel.
     ly, lx = np.nonzero(lips)
@@ -133,6 +135,113 @@ def test_semantic_edit_of_the_truth_matches_the_ray_cast_ideal_edit():
     np.testing.assert_array_equal(edit[~lips], truth.image[~lips])
     changed = np.abs(ideal.image - truth.image).max(-1) > 1e-6
     assert changed[lips].all() and not changed[truth.regions == head.REGION_ID["teeth"]].any()
+
+
+# Inside a region, the recolour with fitted shading against the ray-cast ideal: mean absolute
+# error per channel (the nine-term light misses a clamped Lambertian by ~3 %, and the coarse
+# teeth's Gouraud shading by up to ~5 %, where a pixel's own ratio is not kept).
+FITTED_SHADING_ERROR = 0.02
+
+
+def _makehuman_view(size, distance, jaw_open):
+    """The MakeHuman head from the near-frontal camera: its ray-cast image, region labels,
+    interpolated head-space normals, and a function giving the ideal edit of a prompt."""
+    import dataclasses
+
+    import jax.numpy as jnp
+
+    from gae_jax.model import avatar as av
+    from gae_jax.model import flame
+
+    model, assets = head.make_head("makehuman")
+    shape = np.zeros(model.num_shape)
+    intrinsics, w2c = synthetic.camera_rig(9, size, distance=distance)
+    camera = synthetic.Camera(intrinsics=intrinsics[synthetic.HELD_OUT_CAMERA],
+                              w2c=w2c[synthetic.HELD_OUT_CAMERA], width=size, height=size)
+    expr = np.zeros(model.num_expr)
+    expr[assets.expr_names.index("jawOpen")] = jaw_open
+    verts = np.asarray(flame.lbs(model, dataclasses.replace(
+        flame.zero_params(model), expr=jnp.asarray(expr, jnp.float32))))
+    faces = np.asarray(model.faces)
+    truth = raycast(verts, faces, synthetic.shaded_colors(model, assets.vertex_colors, shape),
+                    assets.face_regions, camera)
+    normals = raycast(verts, faces, av.vertex_normals(np.asarray(model.v_template), faces),
+                      assets.face_regions, camera).image
+    normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-9)
+
+    def ideal(prompt):
+        albedo = instructions.ideal_albedo(instructions.parse(prompt), assets.vertex_colors,
+                                           faces, assets.face_regions, verts)
+        return raycast(verts, faces, synthetic.shaded_colors(model, albedo, shape),
+                       assets.face_regions, camera).image
+
+    return truth, normals, ideal
+
+
+@pytest.mark.parametrize("size, distance, jaw_open, prompts", [
+    (128, 0.68, 0.0, ["make the skin light blue", "make the hair blonde", "make the hair black",
+                      "make the eyebrows white"]),
+    (192, 0.45, 0.8, ["make the eyebrows black", "make the eyes light green",
+                      "make the whites of the eyes dark red", "make the teeth yellow",
+                      "make the teeth black", "make the tongue light blue",
+                      "turn the lips navy blue"])])
+def test_fitted_shading_recolours_every_region_as_the_ray_cast_ideal(size, distance, jaw_open,
+                                                                     prompts):
+    """With normals, textured regions (the MakeHuman hair and brows are painted strokes of
+    skin and hair colour) get the named colour evenly shaded, as the ideal albedo edit does,
+    where luminance over the region's albedo turns the strokes into blotches; uniform regions
+    stay exact."""
+    import cv2
+
+    truth, normals, ideal = _makehuman_view(size, distance, jaw_open)
+    for prompt in prompts:
+        region = truth.regions == head.REGION_ID[instructions.parse(prompt).region]
+        inner = cv2.erode(region.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        assert inner.sum() >= 20, prompt
+        target = ideal(prompt)
+        fitted = make_editor("semantic").edit(truth.image, truth.image, prompt,
+                                              jax.random.PRNGKey(0),
+                                              dict(regions=truth.regions, normals=normals))
+        error = np.abs(fitted - target)[inner].mean()
+        assert error < FITTED_SHADING_ERROR, (prompt, error)
+        np.testing.assert_array_equal(fitted[~region], truth.image[~region])
+        if "hair" in prompt or "eyebrows" in prompt:
+            luminance = make_editor("semantic").edit(truth.image, truth.image, prompt,
+                                                     jax.random.PRNGKey(0),
+                                                     dict(regions=truth.regions))
+            assert np.abs(luminance - target)[inner].mean() > 3 * error, prompt
+
+
+def test_outline_jitter_scales_with_the_region_and_keeps_thin_regions_edited():
+    """At noise 1 the outline of a wide region grows and shifts by up to 4 px each, a 3-px-wide
+    one's by 3 / 16 of that; at the CLI's noise (0.3) the thin one is still edited over most of
+    its pixels in most calls."""
+    import cv2
+
+    regions = np.full((48, 48), head.REGION_ID["skin"])
+    regions[6:42, 4:40] = LIPS  # 36 px wide
+    regions[20:23, 42:47] = head.REGION_ID["brows"]  # 3 px wide
+    image = np.full((48, 48, 3), 0.6, np.float32)
+    editor, default = make_editor("semantic", noise=1.0), make_editor("semantic", noise=0.3)
+    cases = {LIPS: ("turn the lips blue", 4.0), head.REGION_ID["brows"]:
+             ("make the eyebrows black", 4.0 * 3 / semantic.FULL_SIZE_THICKNESS)}
+    for rid, (prompt, reach) in cases.items():
+        inside = regions == rid
+        distance = cv2.distanceTransform((~inside).astype(np.uint8), cv2.DIST_L2, 5)
+        furthest, kept = [], []
+        for k in range(24):
+            for noisy, store in ((editor, furthest), (default, kept)):
+                out = noisy.edit(image, image, prompt, jax.random.PRNGKey(k),
+                                 dict(regions=regions))
+                tone = out[0, 0] / image[0, 0]  # the global tone change, far from the regions
+                changed = np.abs(out - image * tone).max(-1) > 0.05
+                store.append(distance[changed].max() if store is furthest and changed.any()
+                             else changed[inside].mean() if store is kept else 0.0)
+        assert max(furthest) <= reach * (1 + np.sqrt(2)) + 1, (prompt, max(furthest))
+        if rid == LIPS:
+            assert max(furthest) >= 2  # the outline does move
+        else:
+            assert np.mean(np.asarray(kept) > 0.9) > 0.75, kept
 
 
 def test_stripes_follow_head_space_height():
@@ -287,3 +396,28 @@ def test_ip2p_edits_with_a_tiny_local_pipeline(tmp_path):
     assert np.abs(a - c).max() > 0
     with pytest.raises(ValueError, match="differ in size"):
         editor.edit(render, original[:8], "x", jax.random.PRNGKey(0))
+
+
+def test_on_the_outline_only_the_regions_share_of_a_pixel_is_recoloured():
+    """Where the avatar's coverage says a pixel is partly the region, the edit changes it by
+    that share of the recolour (old colour: the region's albedo times the light, which without
+    normals is the pixel's luminance over the region's albedo); inside and outside the
+    outline's band the edit is the plain recolour / the image."""
+    image, regions, shade = toy_render()
+    lips = regions == LIPS
+    coverage = np.zeros(regions.shape + (len(head.REGIONS),), np.float32)
+    coverage[..., LIPS] = lips
+    coverage[3, 5:11, LIPS] = 0.3  # the skin row above the lips is 30 % lips
+    coverage[4, 5:11, LIPS] = 0.8  # the lips' top row is 80 % lips
+    out = make_editor("semantic").edit(image, image, "turn the lips blue", jax.random.PRNGKey(0),
+                                       dict(regions=regions, coverage=coverage))
+    blue = np.asarray(instructions.COLOURS["blue"])
+    base = np.asarray(head.ALBEDO["lips"])
+    light = (image @ semantic.LUMA) / (base @ semantic.LUMA)
+    for row, share in ((3, 0.3), (4, 0.8)):
+        expected = image[row, 5:11] + share * (blue - base) * light[row, 5:11, None]
+        np.testing.assert_allclose(out[row, 5:11], expected, atol=1e-5)
+    inner = np.zeros_like(lips)
+    inner[5:7, 6:10] = True  # not on the outline
+    np.testing.assert_allclose(out[inner], (blue * shade[..., None])[inner], atol=1e-5)
+    np.testing.assert_array_equal(out[:2], image[:2])

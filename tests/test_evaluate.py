@@ -162,3 +162,42 @@ def test_scoring_refuses_a_tile_capacity_that_would_drop_gaussians():
 
     with pytest.raises(ValueError, match="tile_capacity must be >= 1"):
         score.evaluate_avatars(None, None, None, tile_capacity=0)
+
+
+def test_the_ideal_stripes_are_decided_per_ray_from_the_rest_height(tmp_path):
+    """The stripes' truth: where the hit face is the region and the rest-pose height
+    interpolated at the hit is on a stripe, the shaded stripe colour, else the shaded original
+    (checked at one ray per pixel against the same rays cast with the two colourings and the
+    height as plain vertex colours)."""
+    import dataclasses
+
+    from gae_jax import instructions
+    from gae_jax.evaluation import truth
+    from gae_jax.scene import raycast
+
+    scene = synthetic.make_synthetic_scene(size=48, num_cameras=9, frames_per_sequence=2,
+                                           progress=False, cache_dir=str(tmp_path))
+    one_ray = dataclasses.replace(scene, supersample=1)
+    prompt = "add green stripes to the skin"
+    instruction, ideal = truth.ideal_of(one_ray, prompt)
+    frames = truth.frames_truth(one_ray, protocols.protocol_frames(one_ray, "novel_view", 1),
+                                ideal)
+    name, t = frames.pairs[0]
+    verts = np.asarray(synthetic._posed(scene.model, scene.sequences[name].params(
+        scene.shapes["A"], t)))
+    camera = scene.camera(frames.cameras[0])
+    faces = np.asarray(scene.model.faces)
+
+    def cast(values):
+        return raycast.raycast(verts, faces, values, scene.face_regions, camera,
+                               background=scene.background)
+
+    plain = cast(ideal.values[:, :3])
+    paint = cast(ideal.values[:, 3:6]).image
+    height = cast(np.repeat(ideal.values[:, 6:7], 3, 1)).image[..., 0]
+    on = (plain.regions == head.REGION_ID["skin"]) & instructions.stripe_on(height)
+    expected = np.where(on[..., None], paint, plain.image)
+    expected = (np.clip(expected, 0, 1) * 255 + 0.5).astype(np.uint8)
+    got = frames.truth[0, 0]
+    assert on.sum() > 50 and (plain.regions == head.REGION_ID["skin"]).sum() > on.sum() + 50
+    assert np.mean(np.abs(got.astype(int) - expected.astype(int)) <= 1) > 0.999

@@ -9,7 +9,7 @@ import gae_jax
 
 PACKAGE = os.path.dirname(gae_jax.__file__)
 # A module may import from its own stage and from stages of a lower rank only.
-RANK = {"util": 0, "render": 1, "loop": 1, "model": 2, "scene": 3, "instructions": 4,
+RANK = {"util": 0, "colours": 0, "render": 1, "loop": 1, "model": 2, "scene": 3, "instructions": 4,
         "evaluation": 5, "fit": 5, "edit": 6, "cli": 7, "viewer": 7, "reconstruct": 8,
         "train": 8, "evaluate": 8, "demo": 8, "view": 8, "__init__": 9}
 

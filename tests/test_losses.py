@@ -3,6 +3,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from jax.test_util import check_grads
 
 from gae_jax.render import losses
@@ -66,3 +67,31 @@ def test_regularisers_penalise_only_beyond_the_threshold(x64):
     assert np.all(np.isfinite(np.asarray(g))) and np.allclose(g[:2], 0)
     check_grads(lambda s: losses.scale_regulariser(s), (log_scales,), order=1, modes=["rev"],
                 eps=1e-6)
+
+
+def test_region_codes_tell_every_two_regions_apart_by_two_bits():
+    for r in (1, 3, 10, 15):
+        codes = losses.region_codes(r)
+        assert codes.shape[0] == r + 1 and not codes[0].any()
+        assert np.all(codes[1:].sum(1) == 2)
+        distance = np.abs(codes[:, None] - codes[None, :]).sum(-1)
+        assert distance[~np.eye(r + 1, dtype=bool)].min() >= 2
+
+
+def test_region_loss_is_the_per_pixel_l1_to_the_labels_codes(x64):
+    rng = np.random.default_rng(0)
+    codes = losses.region_codes(3)
+    weights = rng.uniform(0, 0.6, (5, 4, codes.shape[1]))
+    labels = np.array([[0, 1, 2, -1]] * 4 + [[-2, -2, 0, 1]])
+    value = float(losses.region_loss(jnp.asarray(weights), jnp.asarray(labels), codes))
+    expected = 0.0
+    for y in range(5):
+        for x in range(4):
+            if labels[y, x] < -1:
+                continue  # unknown: not counted
+            expected += np.abs(weights[y, x] - codes[labels[y, x] + 1]).sum()
+    assert value == pytest.approx(expected / 20)
+    check_grads(lambda w: losses.region_loss(w, jnp.asarray(labels), codes),
+                (jnp.asarray(weights),), order=1, modes=("rev",))
+    exact = codes[np.maximum(labels + 1, 0)]
+    assert float(losses.region_loss(jnp.asarray(exact), jnp.asarray(labels), codes)) == 0.0

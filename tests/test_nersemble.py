@@ -66,3 +66,25 @@ def test_malformed_files_are_named(exported, tmp_path):
         nersemble.load_flame_param(str(tmp_path / "p.npz"))
     with pytest.raises(ValueError, match="unreadable image"):
         nersemble.read_image(str(tmp_path / "missing.png"))
+
+
+def test_a_captures_labels_are_its_tracked_mesh_projected_into_each_view(exported):
+    """Read back as a capture (no region labels of its own, only foreground masks), the scene's
+    training labels are ray-cast from its posed mesh: the synthetic scene's own labels, which
+    are that projection, at every pixel but the few whose centre ray grazes an edge; a
+    subsampled grid is every stride-th pixel of it."""
+    from gae_jax.model import head
+    from gae_jax.scene import types
+
+    scene, folder, _ = exported
+    model, assets = head.make_head("procedural")
+    capture = nersemble.load_scene(folder, model, assets.face_regions)
+    assert capture.kind == "capture"
+    projected = types.training_labels(capture)
+    expected = types.training_labels(scene)[np.asarray(capture.train_cameras)]
+    mine = projected[np.asarray(capture.train_cameras)]
+    assert mine.shape == expected.shape
+    assert np.mean(mine == expected) > 0.995
+    assert set(np.unique(mine)) <= set(range(-1, len(head.REGIONS)))
+    coarse = types.training_labels(capture, stride=2)
+    np.testing.assert_array_equal(coarse, projected[..., ::2, ::2])

@@ -74,21 +74,36 @@ def test_coverage_is_the_bruteforce_alpha_of_the_selected_gaussians(small):
 
 
 @pytest.mark.parametrize("blend", ["standard", "wabe_grad"])
-def test_preview_coverage_is_the_bruteforce_alpha_of_the_selected_gaussians(small, blend):
-    """The preview's fused coverage channel (one render instead of preview + coverage) under a
-    blend whose image is the standard one; the image beside it is the plain render."""
+def test_preview_channels_are_the_bruteforce_composites(small, blend):
+    """The preview's one pass: the plain image, the head-space position (alpha-normalised),
+    the normal (normalised) and the region of the largest weight, each the brute-force
+    weighted sum of the Gaussians' values."""
     from gae_jax.edit.step import make_preview
     from gae_jax.render import wabe
 
     scene, avatar, rig = small
-    selected = np.asarray(avatar.regions) == head.REGION_ID["lips"]
-    canonical = jnp.zeros((avatar.num, 3))
-    image, _, _, cover = make_preview(wabe.named(blend))(
-        avatar.trainable(), rig, jnp.int32(1), jnp.int32(0), canonical, jnp.asarray(selected))
-    expected = _weights(avatar, rig, 1)[..., selected].sum(-1)
-    np.testing.assert_allclose(np.asarray(cover), expected, atol=1e-4)
+    rng = np.random.default_rng(0)
+    positions = rng.normal(size=(avatar.num, 3)).astype(np.float32)
+    normals = rng.normal(size=(avatar.num, 3)).astype(np.float32)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    view = make_preview(wabe.named(blend))(avatar.trainable(), rig, jnp.int32(1), jnp.int32(0),
+                                           jnp.asarray(np.concatenate([positions, normals], 1)))
+    w = _weights(avatar, rig, 1)
+    alpha = w.sum(-1)
+    covered = alpha > 0.5
+    assert covered.sum() > 10
+    np.testing.assert_allclose(np.asarray(view.alpha), alpha, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(view.coords)[covered],
+                               (w @ positions / alpha[..., None])[covered], atol=2e-3)
+    n = w @ normals
+    np.testing.assert_allclose(np.asarray(view.normals)[covered],
+                               (n / np.linalg.norm(n, axis=-1, keepdims=True))[covered],
+                               atol=2e-3)
+    onehot = np.eye(len(head.REGIONS))[np.asarray(avatar.regions)]
+    expected = np.where(covered, np.argmax(w @ onehot, -1), -1)
+    np.testing.assert_array_equal(np.asarray(view.regions), expected)
     plain = rigs.render_bound(avatar.trainable(), rig, 0, 1, blend=wabe.standard()).image
-    np.testing.assert_allclose(np.asarray(image), np.asarray(plain), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(view.image), np.asarray(plain), atol=1e-5)
 
 
 def test_selection_is_a_mean_vote_above_one_half():

@@ -101,14 +101,13 @@ def test_step_compiles_once(base):
     render = rigs.make_view_renderer(s.step_config.blend)
     # one renderer per blend and process (lru_cache): other tests may have compiled it already
     compiled_before = render.jitted._cache_size()
-    ed = jnp.asarray(np.ones(s.original.num, bool))
     params = s.original.trainable()
     images = []
     for rig in (s.rig, rigs.with_vertices(s.rig, np.asarray(s.rig.vertices)[[2, 0, 1]]),
                 rigs.with_vertices(s.rig, np.asarray(s.rig.vertices)[1:2])):
         frame = jnp.int32(0 if rig.vertices.shape[0] == 1 else 1)
-        images.append((np.asarray(s.preview(params, rig, jnp.int32(2), frame, s.canonical,
-                                            ed)[0]),
+        images.append((np.asarray(s.preview(params, rig, jnp.int32(2), frame,
+                                            s.canonical).image),
                        np.asarray(render(params, rig, frame, jnp.int32(2)))))
     assert s.preview.jitted._cache_size() == 1
     assert render.jitted._cache_size() - compiled_before <= 1
@@ -369,3 +368,24 @@ def test_discriminator_sees_pairs_at_gan_max_side(base):
     assert losses[48] == pytest.approx(float(expected), rel=1e-4)
     assert losses[0] == losses[SIZE] == pytest.approx(float(full), rel=1e-4)
     assert abs(losses[48] - losses[0]) > 1e-4 * abs(losses[0])
+
+
+def test_a_region_most_views_hide_is_edited_from_the_views_that_show_it(base):
+    """The teeth show in a minority of views: the sampler draws only views whose projected
+    labels show at least a quarter of what a well-showing view does (the definition, brute
+    force); the lips show everywhere and keep the independent draw."""
+    scene, _ = base
+    s = session_for(base, prompt="make the teeth black", iterations=2)
+    draw = edit.make_sampler(s)
+    labels = np.concatenate([scene.regions[n] for n in scene.sequences_of("train")], axis=1)
+    counts = (labels == head.REGION_ID["teeth"]).sum((-2, -1))
+    threshold = max(1.0, sampler.SHOWING_FRACTION * np.percentile(
+        counts[np.asarray(scene.train_cameras)], 90))
+    expected = {(c, r) for c in scene.train_cameras for r in range(counts.shape[1])
+                if counts[c, r] >= threshold}
+    assert 0 < len(expected) < 0.9 * len(scene.train_cameras) * counts.shape[1]
+    assert {tuple(v) for v in draw.showing.tolist()} == expected
+    for i in range(6):
+        b = draw.batch(s.original.trainable(), i, jax.random.PRNGKey(3))
+        assert (int(b["cams"][0]), int(b["frames"][0])) in expected
+    assert edit.make_sampler(session_for(base, iterations=2)).showing is None

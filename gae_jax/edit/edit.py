@@ -35,7 +35,8 @@ RESUME_GROWABLE = ("iterations",)  # more iterations extend a run
 
 @dataclasses.dataclass
 class Session:
-    """What `setup` builds: scene, original avatar, device rig, step functions."""
+    """What `setup` builds: scene, original avatar, device rig, step functions, and `canonical`
+    (N, 6): each Gaussian's head-space position and normal (the rest pose)."""
 
     config: EditConfig
     step_config: StepConfig
@@ -55,7 +56,10 @@ def setup(config: EditConfig, scene: Scene, original: av.Avatar, step=None,
     pairs = training_frames(scene)
     rig = rigs.put_rig(scene, original, posed_vertices(scene, pairs))
     step_config = StepConfig.of(config)
-    canonical = av.deform(original, scene.model.v_template, scene.model.faces).means
+    rest = scene.model.v_template
+    canonical = jnp.concatenate([
+        av.deform(original, rest, scene.model.faces).means,
+        jnp.asarray(av.gaussian_normals(original.binding, rest, scene.model.faces))], -1)
     return Session(config, step_config, scene, original, rig, pairs, canonical,
                    step or make_edit_step(step_config), preview or make_preview(step_config.blend))
 

@@ -19,7 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from gae_jax.edit import region as edit_region
-from gae_jax.edit.edit import Session, make_sampler
+from gae_jax.edit.edit import Session
+from gae_jax.edit.sampler import configured_editor, editor_context
 from gae_jax.evaluation import protocols, truth
 from gae_jax.model import avatar as av
 from gae_jax.model import avatar_io, head
@@ -69,26 +70,24 @@ def write_grid(session: Session, edited: av.Avatar, path: str, key) -> None:
         protocol = protocols.ProtocolFrames("train", s.pairs[:3], tuple(s.scene.train_cameras[:2]))
     else:
         protocol = protocols.protocol_frames(s.scene, name, frames=3, cameras=2)
-    albedo = (truth.ideal_albedo(s.scene, s.config.prompt)[1] if s.scene.kind == "synthetic"
-              else None)
-    reference = truth.frames_truth(s.scene, protocol, albedo)
+    ideal = truth.ideal_of(s.scene, s.config.prompt)[1] if s.scene.kind == "synthetic" else None
+    reference = truth.frames_truth(s.scene, protocol, ideal)
     rig = rigs.with_vertices(s.rig, reference.vertices)
     render = rigs.make_view_renderer(s.step_config.blend)
     original = rigs.render_views(render, s.original.trainable(), rig, protocol.cameras)
     ours = rigs.render_views(render, edited.trainable(), rig, protocol.cameras)
-    sampler = make_sampler(s)
-    selected = jnp.asarray(sampler.editable())
+    editor = configured_editor(s.config)
     region = edit_region.parse_region(s.config.region, s.config.prompt)
     rows = []
     for p, (seq, t) in enumerate(protocol.pairs):
         for k, cam in enumerate(protocol.cameras):
             untouched = original[p, k]
-            _, labels, coords, _ = s.preview(s.original.trainable(), rig, jnp.int32(cam),
-                                             jnp.int32(p), s.canonical, selected)
-            labels = np.asarray(labels)
-            edit = np.clip(sampler.editor.edit(
+            view = s.preview(s.original.trainable(), rig, jnp.int32(cam), jnp.int32(p),
+                             s.canonical)
+            labels = np.asarray(view.regions)
+            edit = np.clip(editor.edit(
                 untouched, untouched, s.config.prompt, jax.random.fold_in(key, p * 97 + k),
-                dict(regions=labels, canonical=np.asarray(coords), view=(cam, seq, t))), 0, 1)
+                editor_context(view, (cam, seq, t))), 0, 1)
             outline = None
             if region == ("auto",):
                 outline = edit_region.change_mask(edit, untouched, s.config.change_threshold)
@@ -96,7 +95,7 @@ def write_grid(session: Session, edited: av.Avatar, path: str, key) -> None:
                 outline = np.isin(labels, [head.REGION_ID[n] for n in region])
             if outline is not None:
                 mask = edit_region.soft_mask(outline.astype(np.float32), s.config.region_dilate,
-                                          s.config.region_blur)
+                                             s.config.region_blur) * np.asarray(view.alpha)
                 edit = edit_region.composite(edit, untouched, mask)
             cells = [_zoom_outlined(to_uint8(x), outline) for x in (untouched, edit)]
             cells += [_zoom_outlined(to_uint8(ours[p, k]), None),

@@ -2,6 +2,10 @@
 edit region (`region`: tracing and composited targets), the edit cache, Instruct-NeRF2NeRF's
 dataset, and placing a batch on the devices.
 
+A named region that most training views do not show (the teeth, the tongue) is edited from the
+views that show it (`showing_views`): a uniform draw would spend most iterations on views where
+its Gaussians get no gradient.
+
 Edits are quantised to 8 bits (an editor's output image), so checkpoints hold them exactly and
 a resumed run reproduces an uninterrupted one.
 """
@@ -16,7 +20,12 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from gae_jax.edit import region as edit_region
 from gae_jax.edit.config import EditConfig
 from gae_jax.edit.editors import make_editor
-from gae_jax.render import wabe
+from gae_jax.model import head
+from gae_jax.scene.types import projected_labels, training_labels
+
+
+SHOWING_FRACTION = 0.25  # of the pixels a well-showing view shows, for a view to count
+ALL_VIEWS = 0.95  # above this share of showing views the draw stays uniform
 
 
 def frame_table(scene, pairs):
@@ -55,6 +64,40 @@ def replicate(tree, mesh):
     return jax.device_put(tree, NamedSharding(mesh, PartitionSpec()))
 
 
+def configured_editor(config: EditConfig):
+    """The 2D editor `config` names, with its options."""
+    options = {"semantic": dict(noise=config.editor_noise, keeps=config.editor_keeps,
+                                 bleed=config.editor_bleed, modes=config.editor_modes),
+               "ip2p": dict(folder=config.ip2p_folder)}.get(config.editor, {})
+    return make_editor(config.editor, **options)
+
+
+def editor_context(view, where: tuple, labels=None) -> dict:
+    """The context a 2D editor reads (`editors` protocol) from a `step.Preview` of one view;
+    where: (camera, sequence, frame); labels: (H, W) region labels of the view to use instead
+    of the avatar's rendered ones (a training view's projected mesh labels)."""
+    regions = np.asarray(view.regions) if labels is None else np.maximum(labels, -1)
+    return dict(regions=regions, coverage=np.asarray(view.coverage),
+                canonical=np.asarray(view.coords), normals=np.asarray(view.normals),
+                view=tuple(where))
+
+
+def showing_views(scene, region: tuple, stride: int | None = None) -> np.ndarray | None:
+    """(K, 2) int (camera, training-frame row) of the training views that show the region
+    (named regions `region`): at least `SHOWING_FRACTION` of the pixels the region covers in
+    its 90th-percentile view, from the tracked mesh's labels projected into the views
+    (`types.training_labels`, every `stride`-th pixel). None when nearly all views show it (the
+    sampler then draws cameras and frames independently, as without a region)."""
+    stride = stride or max(1, round(scene.width / 128))
+    labels = training_labels(scene, stride)[np.asarray(scene.train_cameras)]
+    counts = np.isin(labels, [head.REGION_ID[n] for n in region]).sum((-2, -1))  # (C, T)
+    threshold = max(1.0, SHOWING_FRACTION * float(np.percentile(counts, 90)))
+    cams, rows = np.nonzero(counts >= threshold)
+    if len(cams) >= ALL_VIEWS * counts.size or len(cams) == 0:
+        return None
+    return np.stack([np.asarray(scene.train_cameras)[cams], rows], -1).astype(np.int64)
+
+
 class EditSampler:
     """Samples (camera, frame) pairs and produces their 2D edits.
 
@@ -62,7 +105,7 @@ class EditSampler:
       config: the edit's settings (editor, batch, prompt, region, ...).
       scene: the scene (training images: the original the editor is conditioned on).
       pairs: the training (sequence, frame) pairs, in rig frame order.
-      preview: `step.make_preview(...)` function; rig and canonical (N, 3) for it.
+      preview: `step.make_preview(...)` function; rig and canonical (N, 6) for it.
       region_fns: (`region.make_tracer()`, `region.make_coverage()`) jitted functions.
       editor: a 2D editor object used instead of `config.editor` (benchmarks' oracle).
 
@@ -72,28 +115,24 @@ class EditSampler:
 
     def __init__(self, config: EditConfig, scene, pairs, preview, rig, canonical, region_fns,
                  editor=None):
-        options = {"semantic": dict(noise=config.editor_noise, keeps=config.editor_keeps,
-                                     bleed=config.editor_bleed, modes=config.editor_modes),
-                   "ip2p": dict(folder=config.ip2p_folder)}.get(config.editor, {})
         self.config, self.scene, self.pairs = config, scene, pairs
         self.preview, self.rig, self.canonical = preview, rig, canonical
         self.neighbours = frame_table(scene, pairs)
-        self.editor = editor or make_editor(config.editor, **options)
+        self.editor = editor or configured_editor(config)
         self.cache: dict = {}  # (cam, row) -> uint8 edit
         self.dataset: dict = {}  # in2n: (cam, row) -> uint8 edited dataset image
         self.spots = [(int(cam), row) for row in range(len(pairs))
                       for cam in scene.train_cameras]
         self.region = edit_region.parse_region(config.region, config.prompt)
-        # The preview's coverage is the region's map when the region is fixed and the blend's
-        # image is the standard one; `auto` moves after each vote, WABE weighs the image.
-        self.preview_covers = (self.region != ("auto",)
-                               and not wabe.named(config.blend, config.beta).weights_forward)
         self.trace, self.coverage = region_fns
         labels = np.asarray(rig.regions)
         self.votes = np.zeros((len(labels), 2))
         self.fixed = (np.ones(len(labels), bool) if self.region == ("none",) else
                       None if self.region == ("auto",) else
                       edit_region.named_selection(labels, self.region))
+        self.showing = (None if self.region in (("none",), ("auto",)) else
+                        showing_views(scene, self.region))
+        self.label_cache: dict = {}
 
     def editable(self) -> np.ndarray:
         """(N,) bool: the Gaussians the edit may move now."""
@@ -104,47 +143,63 @@ class EditSampler:
         return self.scene.images[name][cam, t]
 
     def edit(self, params, cam, row, key):
-        image, regions, coords, coverage = self.preview(
-            params, self.rig, jnp.int32(cam), jnp.int32(row), self.canonical,
-            jnp.asarray(self.editable()))
+        view = self.preview(params, self.rig, jnp.int32(cam), jnp.int32(row), self.canonical)
         unedited = self.original_image(cam, row) / 255.0
-        context = dict(regions=np.asarray(regions), canonical=np.asarray(coords),
-                       view=(cam,) + tuple(self.pairs[row]))
-        edited = self.editor.edit(np.asarray(image), unedited, self.config.prompt, key, context)
+        labels = self.labels(cam, row)
+        context = editor_context(view, (cam,) + tuple(self.pairs[row]), labels)
+        edited = self.editor.edit(np.asarray(view.image), unedited, self.config.prompt, key,
+                                  context)
         edited = np.clip(edited, 0, 1)
         if self.region != ("none",):
-            edited = self.composited(params, cam, row, edited, unedited, coverage)
+            edited = self.composited(params, cam, row, edited, unedited, view, labels)
         edited = (edited * 255 + 0.5).astype(np.uint8)
         self.cache[(cam, row)] = edited
         return edited
 
-    def composited(self, params, cam, row, edited, unedited, preview_coverage):
+    def labels(self, cam: int, row: int) -> np.ndarray:
+        """(H, W) int8 region labels of a training view: the tracked mesh projected into it
+        (`types.projected_labels`, what a user has; computed once per view)."""
+        if (cam, row) not in self.label_cache:
+            self.label_cache[(cam, row)] = projected_labels(self.scene, [self.pairs[row]],
+                                                            [cam])[0, 0]
+        return self.label_cache[(cam, row)]
+
+    def composited(self, params, cam, row, edited, unedited, view, labels):
         """The edit inside the region's soft mask at this view, the unedited image outside;
         `auto` first votes this edit's change mask into the tracing (which moves the region:
-        its coverage is rendered again after the vote). preview_coverage: (H, W) the preview's
-        coverage of the region, taken when the blend's image is the standard one."""
+        its coverage is rendered again after the vote). The mask is the named region's
+        projected labels (`labels`), or the avatar's coverage of the traced Gaussians (`auto`),
+        dilated and blurred, and
+        clipped to the avatar's own coverage `view.alpha`: nothing is painted beyond the
+        silhouette."""
         c = self.config
         cam_, row_ = jnp.int32(cam), jnp.int32(row)
         if self.region == ("auto",):
             change = edit_region.change_mask(edited, unedited, c.change_threshold)
             self.votes += np.asarray(self.trace(params, self.rig, cam_, row_,
                                                 jnp.asarray(change, jnp.float32)), np.float64)
-        if self.preview_covers:
-            coverage = np.asarray(preview_coverage)
-        else:
+        if self.region == ("auto",):
             coverage = np.asarray(self.coverage(params, self.rig, cam_, row_,
                                                 jnp.asarray(self.editable())))
-        mask = edit_region.soft_mask(coverage, c.region_dilate, c.region_blur)
+        else:
+            coverage = np.isin(labels, [head.REGION_ID[n] for n in self.region]).astype(
+                np.float32)
+        mask = (edit_region.soft_mask(coverage, c.region_dilate, c.region_blur)
+                * np.asarray(view.alpha))
         return edit_region.composite(edited, unedited, mask)
 
     def batch(self, params, i: int, key) -> dict:
         """The i-th batch as host arrays: samples, fresh edits (or in2n's dataset), neighbours."""
         c = self.config
         k_sample, k_edit = jax.random.split(jax.random.fold_in(key, i))
-        cams = np.asarray(self.scene.train_cameras)[np.asarray(jax.random.randint(
-            k_sample, (c.batch,), 0, len(self.scene.train_cameras)))]
-        rows = np.asarray(jax.random.randint(jax.random.fold_in(k_sample, 1), (c.batch,), 0,
-                                             len(self.pairs)))
+        if self.showing is None:
+            cams = np.asarray(self.scene.train_cameras)[np.asarray(jax.random.randint(
+                k_sample, (c.batch,), 0, len(self.scene.train_cameras)))]
+            rows = np.asarray(jax.random.randint(jax.random.fold_in(k_sample, 1), (c.batch,), 0,
+                                                 len(self.pairs)))
+        else:
+            cams, rows = self.showing[np.asarray(jax.random.randint(
+                k_sample, (c.batch,), 0, len(self.showing)))].T
         edit_keys = jax.random.split(k_edit, 2 * c.batch + 1)
         targets, neighbours = [], []
         if c.dataset_update:  # IN2N: refresh one dataset image per iteration, in order

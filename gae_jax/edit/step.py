@@ -10,6 +10,7 @@ The batch axis is `vmap`ped; shard it over devices (`sampler.put_batch`) to run 
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -173,31 +174,44 @@ def _masked(tree: dict, mask) -> dict:
     return {k: v * _column(mask, v).astype(v.dtype) for k, v in tree.items()}
 
 
-def make_preview(blend: wabe.Blend):
-    """Jitted `preview(params, rig, cam, frame, canonical, selected) -> (image (H, W, 3),
-    regions (H, W) int, -1 background, canonical (H, W, 3) head-space positions, coverage
-    (H, W))` in one composite pass.
+class Preview(NamedTuple):
+    """What the 2D editor and the composite read of one view, from one composite pass.
 
-    canonical: (N, 3) each Gaussian's head-space position (the rest pose); selected: (N,) bool,
-    coverage is their alpha composited among all Gaussians under `blend` (with a blend whose
-    image is the standard one, `region.make_coverage`'s map, without a second render)."""
+    image: (H, W, 3); regions: (H, W) int region label (the region of the largest composited
+    weight, -1 where alpha <= 1/2); coverage: (H, W, R) each region's composited weight (how
+    much of the pixel its Gaussians cover); coords, normals: (H, W, 3) head-space position and
+    unit normal (alpha-normalised); alpha: (H, W) the avatar's coverage.
+    """
+
+    image: jax.Array
+    regions: jax.Array
+    coverage: jax.Array
+    coords: jax.Array
+    normals: jax.Array
+    alpha: jax.Array
+
+
+def make_preview(blend: wabe.Blend):
+    """Jitted `preview(params, rig, cam, frame, canonical) -> Preview` in one composite pass.
+
+    canonical: (N, 6) each Gaussian's head-space position and normal (the rest pose)."""
     num_regions = len(head.REGIONS)
 
     @fast_jit
-    def preview_frame(params, rig: Rig, cam, canonical, selected):
+    def preview_frame(params, rig: Rig, cam, canonical):
         onehot = jax.nn.one_hot(rig.regions, num_regions, dtype=canonical.dtype)
-        extra = jnp.concatenate([onehot, canonical, selected.astype(canonical.dtype)[:, None]],
-                                -1)
-        out = render_bound(params, rig, 0, cam, blend=blend, extra_channels=extra)
-        image = out.image[..., :3]
+        out = render_bound(params, rig, 0, cam, blend=blend,
+                           extra_channels=jnp.concatenate([onehot, canonical], -1))
         votes = out.image[..., 3:3 + num_regions]
         regions = jnp.where(out.alpha > 0.5, jnp.argmax(votes, -1), -1)
-        coords = (out.image[..., 3 + num_regions:6 + num_regions]
-                  / jnp.maximum(out.alpha, 1e-6)[..., None])
-        return image, regions, coords, out.image[..., 6 + num_regions]
+        coords = out.image[..., 3 + num_regions:6 + num_regions] / jnp.maximum(
+            out.alpha, 1e-6)[..., None]
+        normals = out.image[..., 6 + num_regions:9 + num_regions]
+        normals = normals / jnp.maximum(jnp.linalg.norm(normals, axis=-1, keepdims=True), 1e-6)
+        return Preview(out.image[..., :3], regions, votes, coords, normals, out.alpha)
 
-    def preview(params, rig: Rig, cam, frame, canonical, selected):
-        return preview_frame(params, one_frame(rig, frame), cam, canonical, selected)
+    def preview(params, rig: Rig, cam, frame, canonical):
+        return preview_frame(params, one_frame(rig, frame), cam, canonical)
 
     preview.jitted = preview_frame  # compiled once for rigs of any length (`rig.one_frame`)
     return preview

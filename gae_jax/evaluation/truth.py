@@ -1,8 +1,9 @@
 """What an edit is scored against, gathered once into an `EvalSet` that a run folder keeps.
 
 For a synthetic scene the truth is the *ideal edit*: the ray-cast mesh with the instruction
-applied to its albedo (`instructions.ideal_albedo`), at the scene's own supersampling; styles
-have no ideal and are scored against the unedited truth. For a user's capture the truth is the
+applied to its albedo (`instructions.ideal_albedo`; stripes decided per ray,
+`instructions.stripe_shader`), at the scene's own supersampling; styles have no ideal and are
+scored against the unedited truth. For a user's capture the truth is the
 captured images (an edit necessarily departs from them: the scores measure what changed).
 
 An `EvalSet` holds, per protocol, the frames to score and a clip for flicker: posed mesh
@@ -16,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -76,20 +77,48 @@ def ideal_albedo(scene: Scene, prompt: str, mode: int = 0, modes: int = 1):
                                                   scene.model.v_template, phase)
 
 
-def frames_truth(scene: Scene, protocol: protocols.ProtocolFrames, albedo) -> EvalFrames:
-    """Truth of one protocol: ray-cast with `albedo` (synthetic) or the captured images."""
+@dataclasses.dataclass(frozen=True)
+class Ideal:
+    """What a synthetic truth ray-casts: (V, K) per-vertex values and the `raycast_views`
+    shader that colours each ray from them (None: the values are the shaded colour)."""
+
+    values: np.ndarray
+    shader: Optional[Callable] = None
+
+
+def ideal_of(scene: Scene, prompt: str, mode: int = 0, modes: int = 1):
+    """(instruction or None, `Ideal`) of identity A: the shaded ideal albedo, or for stripes
+    the shaded colours, the shaded stripe colour and the rest height with a per-ray stripe
+    shader (`instructions.stripe_shader`)."""
+    instruction, albedo = ideal_albedo(scene, prompt, mode, modes)
+    shape = scene.shapes["A"]
+    if instruction is None or not instruction.stripes:
+        return instruction, Ideal(synthetic.shaded_colors(scene.model, albedo, shape))
+    phase = instructions.mode_of(instructions.parse(prompt), mode, modes)[1]
+    paint = np.broadcast_to(np.asarray(instruction.colour), albedo.shape)
+    values = np.concatenate([synthetic.shaded_colors(scene.model, scene.albedo["A"], shape),
+                             synthetic.shaded_colors(scene.model, paint, shape),
+                             np.asarray(scene.model.v_template, np.float64)[:, 1:2]], 1)
+    return instruction, Ideal(values, instructions.stripe_shader(instruction, scene.face_regions,
+                                                                 phase))
+
+
+def frames_truth(scene: Scene, protocol: protocols.ProtocolFrames, ideal) -> EvalFrames:
+    """Truth of one protocol: ray-cast (synthetic) with `ideal`, an `Ideal` or a (V, 3) albedo,
+    or the captured images."""
     vertices = posed_vertices(scene, protocol.pairs, identity="A")
     cams = list(protocol.cameras)
     if scene.kind == "synthetic":
-        colours = synthetic.shaded_colors(scene.model, albedo, scene.shapes["A"])
+        if not isinstance(ideal, Ideal):
+            ideal = Ideal(synthetic.shaded_colors(scene.model, ideal, scene.shapes["A"]))
         images, regions = [], []
         rays = raycast.ray_sets(synthetic.rig_cameras(scene.intrinsics[cams], scene.w2c[cams],
                                                       scene.width), scene.supersample)
         for name, t in protocol.pairs:
             img, reg = synthetic.render_frame(
-                scene.model, scene.face_regions, colours, scene.shapes["A"],
+                scene.model, scene.face_regions, ideal.values, scene.shapes["A"],
                 scene.sequences[name], t, scene.intrinsics[cams], scene.w2c[cams], scene.width,
-                scene.background, supersample=scene.supersample, rays=rays)
+                scene.background, supersample=scene.supersample, rays=rays, shader=ideal.shader)
             images.append(img)
             regions.append(reg)
         truth, labels = np.stack(images), np.stack(regions)
@@ -104,7 +133,7 @@ def build(scene: Scene, prompt: str, frames: int = 4, mode: int = 0, modes: int 
     """The EvalSet of an edit with `prompt` on `scene` (`frames` pairs per protocol; the ideal
     of answer `mode` of a `modes`-modal editor, `instructions.mode_of`)."""
     if scene.kind == "synthetic":
-        instruction, albedo = ideal_albedo(scene, prompt, mode, modes)
+        instruction, albedo = ideal_of(scene, prompt, mode, modes)
         kind = "ideal edit" if instruction else "unedited truth (style: no ideal)"
     else:
         try:

@@ -11,6 +11,9 @@ from typing import Optional
 class ReconstructConfig:
     """Settings of `fit` (learning rates in GaussianAvatars' triangle-local units).
 
+    `region_weight` weighs the region loss (the rendered regions against the training views'
+    projected labels, `fit.step.make_fit_step`); 0 fits colour alone.
+
     The Gaussian budget: `per_face` at the start, `max_gaussians` at most (0: no cap). Resolution
     is the scene's. `tile_capacity` 0 sizes the per-tile lists from the initial avatar.
     """
@@ -29,6 +32,7 @@ class ReconstructConfig:
     dssim_weight: float = 0.2
     position_weight: float = 0.01
     scale_weight: float = 1.0
+    region_weight: float = 0.1
     sh_degree: Optional[int] = None
     sh_every: int = 500
     densify_every: int = 0
@@ -72,6 +76,7 @@ class FitStepConfig:
     dssim_weight: float
     position_weight: float
     scale_weight: float
+    region_weight: float
     sh_degree: Optional[int]
     sh_every: int
     tiles_per_chunk: int

@@ -19,6 +19,7 @@ from typing import Callable, Optional
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from gae_jax import loop
 from gae_jax.fit.config import FitStepConfig, ReconstructConfig
@@ -26,9 +27,13 @@ from gae_jax.fit.densify import densify_and_prune
 from gae_jax.fit.step import FitState, initial_state, make_fit_step, optimizer, sh_mask
 from gae_jax.model import avatar as av
 from gae_jax.scene import rig as rigs
-from gae_jax.scene.types import Scene, posed_vertices, training_frames, training_images
+from gae_jax.scene.types import (Scene, posed_vertices, training_frames, training_images,
+                                 training_labels)
 
 CHECKPOINT_NAME = "reconstruct_checkpoint.npz"
+# Changes when the same settings fit a different avatar (cached reconstructions are keyed by it):
+# 2: the region loss on binary region codes.
+RECONSTRUCTION_VERSION = 2
 
 
 def initial_avatar(scene: Scene, config: ReconstructConfig, key) -> av.Avatar:
@@ -75,6 +80,8 @@ def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
     step_config = FitStepConfig.of(config)
     vertices = posed_vertices(scene, training_frames(scene))
     images = jnp.asarray(training_images(scene))
+    labels = jnp.asarray(training_labels(scene) if config.region_weight else
+                         np.zeros((1, 1, 1, 1), np.int8))
     cameras = jnp.asarray(scene.train_cameras, jnp.int32)
     path = os.path.join(checkpoint_dir, CHECKPOINT_NAME) if checkpoint_dir else None
     history, capacity = [], config.tile_capacity
@@ -100,7 +107,7 @@ def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
                                  n=int(h["num_gaussians"])))
     densify_stop = int(config.densify_until * config.iterations)
     for i in range(int(state.step), config.iterations):
-        state, metrics = step(state, rig, images, cameras)
+        state, metrics = step(state, rig, images, labels, cameras)
         recorder.push(i + 1, metrics)
         done = i + 1
         if (config.densify_every and config.densify_from <= done < densify_stop

@@ -2,7 +2,8 @@
 GaussianAvatars' losses, one per-attribute Adam update, accumulate screen-space gradients.
 
 Losses: (1 - dssim_weight) L1 + dssim_weight D-SSIM, position regulariser (beyond 1 triangle
-scale) and scale regulariser (beyond 0.6), on the Gaussians visible in the view. The position
+scale) and scale regulariser (beyond 0.6), on the Gaussians visible in the view, and the region
+loss (`region_weight`): the rendered regions against the view's projected labels. The position
 rate decays exponentially to `lr_means_final` (as in 3DGS).
 """
 
@@ -16,6 +17,7 @@ import numpy as np
 import optax
 
 from gae_jax.fit.config import FitStepConfig
+from gae_jax.model import head
 from gae_jax.model.avatar import TRAINABLE
 from gae_jax.render import losses
 from gae_jax.scene.rig import Rig, render_bound
@@ -65,40 +67,54 @@ def sh_mask(colors_shape, degree) -> jax.Array:
 
 
 def make_fit_step(config: FitStepConfig):
-    """A jitted `step(state, rig, images, cameras) -> (state, metrics)`, state donated.
+    """A jitted `step(state, rig, images, labels, cameras) -> (state, metrics)`, state donated.
 
     rig: the avatar's `Rig` at the training frames; images: (C, T, H, W, 3) uint8 ground truth
-    of those frames; cameras: (K,) int32 cameras to sample from.
+    of those frames; labels: (C, T, H, W) int8 region labels of the same views (the tracked
+    mesh's face regions projected into them; -1 background), read when `region_weight` > 0;
+    cameras: (K,) int32 cameras to sample from.
+
+    With `region_weight` > 0 the avatar also renders each Gaussian's region as extra channels
+    (a binary code, `losses.region_codes`), matched to the labels' (`losses.region_loss`): the
+    reconstruction learns where
+    regions end (Gaussian Grouping's 2D-mask supervision with the regions fixed by the
+    binding), so that recolouring one region's Gaussians reproduces a crisp border.
 
     Plain RGB colours are clipped to [0, 1] after each update: a Gaussian half hidden behind
     another otherwise overshoots (cyan sclera, green spots in the mouth seen from a novel view).
     """
     opt = optimizer(config)
+    codes = jnp.asarray(losses.region_codes(len(head.REGIONS)))
 
-    def loss_fn(params, offset, rig, images, cam, frame, degree):
+    def loss_fn(params, offset, rig, images, labels, cam, frame, degree):
         colors = params["colors"]
         if colors.ndim == 3:
             params = dict(params, colors=colors * sh_mask(colors.shape, degree))
-        out = render_bound(params, rig, frame, cam, screen_offset=offset,
+        extra = codes[rig.regions + 1] if config.region_weight else None
+        out = render_bound(params, rig, frame, cam, screen_offset=offset, extra_channels=extra,
                            tiles_per_chunk=config.tiles_per_chunk)
+        image = out.image[..., :3]
         target = images[cam, frame].astype(jnp.float32) / 255.0
-        photo = losses.photometric(out.image, target, config.dssim_weight)
+        photo = losses.photometric(image, target, config.dssim_weight)
         visible = out.stats.radii > 0
         reg = (config.position_weight * losses.position_regulariser(params["means"], visible)
                + config.scale_weight * losses.scale_regulariser(params["log_scales"], visible))
-        return photo + reg, (out.stats.contributed, dict(
-            photometric=photo, psnr=losses.psnr(out.image, target),
+        region = jnp.float32(0.0)
+        if config.region_weight:
+            region = losses.region_loss(out.image[..., 3:], labels[cam, frame], codes)
+        return photo + reg + config.region_weight * region, (out.stats.contributed, dict(
+            photometric=photo, region=region, psnr=losses.psnr(image, target),
             overflow_tiles=out.stats.overflow_tiles))
 
-    def step(state: FitState, rig: Rig, images, cameras):
+    def step(state: FitState, rig: Rig, images, labels, cameras):
         key, k_cam, k_frame = jax.random.split(state.key, 3)
         cam = cameras[jax.random.randint(k_cam, (), 0, cameras.shape[0])]
         frame = jax.random.randint(k_frame, (), 0, rig.vertices.shape[0])
         degree = jnp.minimum(state.step // max(config.sh_every, 1), config.sh_degree or 0)
         offset = jnp.zeros((rig.binding.shape[0], 2), jnp.float32)
         (loss, (visible, aux)), (grads, offset_grad) = jax.value_and_grad(
-            loss_fn, argnums=(0, 1), has_aux=True)(state.params, offset, rig, images, cam,
-                                                   frame, degree)
+            loss_fn, argnums=(0, 1), has_aux=True)(state.params, offset, rig, images, labels,
+                                                   cam, frame, degree)
         # optax mixes int32 step counts with floats; keep working under strict promotion.
         with jax.numpy_dtype_promotion("standard"):
             updates, opt_state = opt.update(grads, state.opt_state, state.params)

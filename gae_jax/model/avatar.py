@@ -89,6 +89,27 @@ def face_frames(vertices: jax.Array, faces: jax.Array):
     return rotations, scales, (v0 + v1 + v2) / 3.0
 
 
+def vertex_normals(vertices, faces) -> np.ndarray:
+    """(V, 3) unit vertex normals of a mesh: the sum of its faces' area-weighted normals (numpy,
+    float64). vertices: (V, 3); faces: (F, 3) int."""
+    verts = np.asarray(vertices, np.float64)
+    faces = np.asarray(faces)
+    normals = np.zeros_like(verts)
+    face_normals = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]],
+                            verts[faces[:, 2]] - verts[faces[:, 0]])
+    for k in range(3):
+        np.add.at(normals, faces[:, k], face_normals)
+    return normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+
+
+def gaussian_normals(binding, vertices, faces) -> np.ndarray:
+    """(N, 3) float32 unit normal of each Gaussian's place on the mesh: the mean of its face's
+    three vertex normals (smooth across faces, as the surface's shading is). binding: (N,)."""
+    corner = vertex_normals(vertices, faces)[np.asarray(faces)[np.asarray(binding)]].mean(1)
+    return (corner / np.maximum(np.linalg.norm(corner, axis=1, keepdims=True), 1e-12)
+            ).astype(np.float32)
+
+
 def rotmat_to_quat(rot: jax.Array) -> jax.Array:
     """(..., 3, 3) rotation matrices -> (..., 4) unit quaternions, wxyz, w >= 0.
 

@@ -90,6 +90,37 @@ def photometric(render: jax.Array, target: jax.Array, dssim_weight: float = 0.2)
     return (1.0 - dssim_weight) * l1(render, target) + dssim_weight * (1.0 - ssim(render, target))
 
 
+def region_codes(num_regions: int) -> np.ndarray:
+    """(R + 1, B) float32 codes: row 0 the background (all zeros), row r + 1 region r, each a
+    distinct pair of ones among B bits (the smallest B with B (B - 1) / 2 >= R: 5 for 10
+    regions). Rendered as a Gaussian's extra channels, B codes tell R regions apart where R
+    one-hot channels would cost R (the compositor's time grows with the channels); any two
+    regions, and a region and the background, differ in at least two bits, as one-hot codes
+    do."""
+    import itertools
+
+    bits = 2
+    while bits * (bits - 1) // 2 < num_regions:
+        bits += 1
+    codes = np.zeros((num_regions + 1, bits), np.float32)
+    for r, pair in enumerate(itertools.islice(itertools.combinations(range(bits), 2),
+                                              num_regions)):
+        codes[r + 1, list(pair)] = 1.0
+    return codes
+
+
+def region_loss(weights: jax.Array, labels: jax.Array, codes: jax.Array) -> jax.Array:
+    """Mean over pixels of sum_b |W_b - code_b(label)|: (H, W, B) composited region codes (each
+    Gaussian's `region_codes` row as extra channels) against (H, W) int labels (-1: background,
+    coded all zeros; below -1: unknown, not counted). Zero exactly where each pixel is covered
+    by its own region's Gaussians alone, with full opacity: a mix of two regions' codes, which
+    differ in some bits, leaves those bits fractional."""
+    labels = labels.astype(jnp.int32)
+    target = jnp.asarray(codes, weights.dtype)[jnp.maximum(labels + 1, 0)]
+    per_pixel = jnp.sum(jnp.abs(weights - target), axis=-1)
+    return jnp.mean(jnp.where(labels >= -1, per_pixel, 0.0))
+
+
 def position_regulariser(local_means: jax.Array, visible: jax.Array | None = None,
                          threshold: float = POSITION_THRESHOLD) -> jax.Array:
     """Mean over (visible) Gaussians of relu(|mu_local| - threshold), in triangle units."""

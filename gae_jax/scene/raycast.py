@@ -66,11 +66,11 @@ def embree_scene(vertices, faces):
     return scene
 
 
-def _first_hits(scene, face_colors, origins, dirs, background, shade=True):
+def _first_hits(scene, face_colors, origins, dirs, background, shade=True, shader=None):
     """Face (N,) int64 (-1 = miss), distance along the ray (N,) float64 (inf at a miss) and, when
     `shade`, colour (N, 3) float64: the vertex colours interpolated with embree's barycentrics
-    (u, v of the hit point p = (1 - u - v) a + u b + v c). face_colors: (F, 3, 3) float64, the
-    colours of each face's corners."""
+    (u, v of the hit point p = (1 - u - v) a + u b + v c), through `shader` when given.
+    face_colors: (F, 3, K) float64, the K values of each face's corners."""
     hits = scene.run(np.ascontiguousarray(origins, np.float32),
                      np.ascontiguousarray(dirs, np.float32), output=1)
     face_of = hits["primID"].astype(np.int64)
@@ -83,7 +83,8 @@ def _first_hits(scene, face_colors, origins, dirs, background, shade=True):
         u, v = hits["u"][hit].astype(np.float64), hits["v"][hit].astype(np.float64)
         bary = np.clip(np.stack([1 - u - v, u, v], -1), 0, 1)
         bary /= bary.sum(-1, keepdims=True)
-        image[hit] = np.einsum("nk,nkc->nc", bary, face_colors[face_of[hit]])
+        values = np.einsum("nk,nkc->nc", bary, face_colors[face_of[hit]])
+        image[hit] = values[:, :3] if shader is None else shader(values, face_of[hit])
     return face_of, distance, image
 
 
@@ -102,10 +103,17 @@ def raycast(vertices, faces, vertex_colors, face_regions, camera: Camera,
 
 def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, background=(1.0, 1.0, 1.0),
                   supersample: int = 1, workers: int | None = None,
-                  rays: list | None = None) -> list[RaycastImage]:
+                  rays: list | None = None, shape: tuple | None = None,
+                  shader=None) -> list[RaycastImage]:
     """`raycast` of one mesh from several cameras, sharing one acceleration structure across
     `workers` threads (embree releases the GIL; None = one per CPU). `rays`: the cameras'
-    `ray_sets(cameras, supersample)`, when the caller casts the same rig again."""
+    `ray_sets(cameras, supersample)`, when the caller casts the same rig again; `shape`: the
+    (H, W) the rays form when they are not the cameras' full pixel grids (a subsampled grid).
+
+    `shader(values (N, K), faces (N,)) -> (N, 3)` colours each ray's hit from the K values of
+    `vertex_colors` (V, K) interpolated there, before the pixel's rays are averaged (a pattern
+    decided per ray, e.g. stripes sharper than the mesh); without it K is 3 and the values are
+    the colour."""
     import os
     from concurrent.futures import ThreadPoolExecutor
 
@@ -115,8 +123,10 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
     regions = np.asarray(face_regions)
     if vertices.ndim != 2 or vertices.shape[1] != 3:
         raise ValueError(f"vertices must be (V, 3), got {vertices.shape}")
-    if colors.shape != vertices.shape:
-        raise ValueError(f"vertex_colors must be {vertices.shape}, got {colors.shape}")
+    if colors.ndim != 2 or len(colors) != len(vertices) or (
+            colors.shape[1] != 3 if shader is None else colors.shape[1] < 1):
+        raise ValueError(f"vertex_colors must be {vertices.shape} (or (V, K) with a shader), "
+                         f"got {colors.shape}")
     if regions.shape != (faces.shape[0],):
         raise ValueError(f"face_regions must be ({faces.shape[0]},), got {regions.shape}")
     if supersample < 1:
@@ -128,7 +138,8 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
     face_colors = colors[faces]
 
     def view(args):
-        return _view(scene, face_colors, regions, *args, background, supersample)
+        return _view(scene, face_colors, regions, *args, background, supersample, shape,
+                     shader)
 
     workers = workers or os.cpu_count() or 1
     if workers == 1 or len(cameras) == 1:
@@ -137,14 +148,15 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
         return list(pool.map(view, zip(cameras, rays)))
 
 
-def _view(scene, face_colors, regions, camera, rays, background, supersample):
+def _view(scene, face_colors, regions, camera, rays, background, supersample, shape=None,
+          shader=None):
     """One camera's RaycastImage: colour from `supersample`^2 stratified rays per pixel; face,
     region and depth from the centre ray (whose colour is one of the samples when the count is
     odd and is not computed when it is even)."""
     origins, dirs = rays[(0.5, 0.5)]
     centre_is_sample = supersample % 2 == 1
     face_of, distance, centre = _first_hits(scene, face_colors, origins, dirs, background,
-                                            shade=centre_is_sample)
+                                            shade=centre_is_sample, shader=shader)
     if supersample == 1:
         image = centre
     else:
@@ -156,13 +168,13 @@ def _view(scene, face_colors, regions, camera, rays, background, supersample):
                     image += centre
                     continue
                 image += _first_hits(scene, face_colors, *rays[(float(ox), float(oy))],
-                                     background)[2]
+                                     background, shader=shader)[2]
         image /= supersample ** 2
     w2c = np.asarray(camera.w2c, np.float64)
     hit = face_of >= 0
     points = origins + np.where(hit, distance, 0.0)[:, None] * dirs
     depth = np.where(hit, points @ w2c[2, :3] + w2c[2, 3], np.inf)
-    shape = (camera.height, camera.width)
+    shape = shape or (camera.height, camera.width)
     region_map = np.where(hit, regions[np.maximum(face_of, 0)], -1).astype(np.int32)
     return RaycastImage(image=image.reshape(shape + (3,)).astype(np.float32),
                         regions=region_map.reshape(shape), depth=depth.reshape(shape),

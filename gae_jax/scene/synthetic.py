@@ -29,7 +29,7 @@ import sys
 import jax
 import numpy as np
 
-from gae_jax.model import flame, head
+from gae_jax.model import avatar, flame, head
 from gae_jax.render.camera import Camera, look_at_w2c, make_camera
 from gae_jax.scene.raycast import ray_sets, raycast_views
 from gae_jax.scene.types import Scene, Sequence
@@ -176,14 +176,8 @@ def shaded_colors(model: flame.FlameModel, albedo: np.ndarray, shape: np.ndarray
 
     params = flame.zero_params(model)
     params = dataclasses.replace(params, shape=jnp.asarray(shape, jnp.float32))
-    verts = np.asarray(flame.lbs(model, params), np.float64)
-    faces = np.asarray(model.faces)
-    normals = np.zeros_like(verts)
-    face_normals = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]],
-                            verts[faces[:, 2]] - verts[faces[:, 0]])
-    for k in range(3):
-        np.add.at(normals, faces[:, k], face_normals)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    normals = avatar.vertex_normals(np.asarray(flame.lbs(model, params), np.float64),
+                                    model.faces)
     light = LIGHT_DIRECTION / np.linalg.norm(LIGHT_DIRECTION)
     shade = AMBIENT + (1 - AMBIENT) * np.clip(normals @ light, 0, 1)
     return np.clip(albedo * shade[:, None], 0, 1)
@@ -220,12 +214,13 @@ def rig_cameras(intrinsics, w2c, size: int) -> list:
 
 def render_frame(model, face_regions, vertex_colors, shape, sequence: Sequence, frame: int,
                  intrinsics, w2c, size: int, background, supersample: int = 1,
-                 rays: list | None = None):
+                 rays: list | None = None, shader=None):
     """Ground truth of one frame from every camera by ray casting the posed, coloured mesh.
 
     Pass edited `vertex_colors` to get the ideal edit of the same frame; `supersample` rays per
     pixel per axis anti-alias the colour (see `raycast`); `rays`: `raycast.ray_sets` of the rig,
-    built once by a caller that renders many frames.
+    built once by a caller that renders many frames; `shader`: `raycast_views`' per-ray
+    colouring of (V, K) `vertex_colors` (a pattern sharper than the mesh).
     Returns images (C, H, W, 3) uint8 and region maps (C, H, W) int8 (-1 background).
     """
     verts = np.asarray(_posed(model, sequence.params(shape, frame)))
@@ -233,7 +228,8 @@ def render_frame(model, face_regions, vertex_colors, shape, sequence: Sequence, 
     images = np.zeros((len(intrinsics), size, size, 3), np.uint8)
     regions = np.zeros((len(intrinsics), size, size), np.int8)
     views = raycast_views(verts, faces, vertex_colors, face_regions,
-                          rig_cameras(intrinsics, w2c, size), background, supersample, rays=rays)
+                          rig_cameras(intrinsics, w2c, size), background, supersample, rays=rays,
+                          shader=shader)
     for c, out in enumerate(views):
         images[c] = (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8)
         regions[c] = out.regions

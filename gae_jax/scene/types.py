@@ -131,6 +131,54 @@ def training_images(scene: Scene) -> np.ndarray:
     return np.concatenate([scene.images[n] for n in scene.sequences_of("train")], axis=1)
 
 
+UNKNOWN_REGION = -2  # a label that supervises nothing (foreground the tracked mesh misses)
+
+
+def training_labels(scene: Scene, stride: int = 1) -> np.ndarray:
+    """(C, T, H / stride, W / stride) int8 region labels of `training_images(scene)`'s views
+    (every `stride`-th pixel): `projected_labels` of the training frames from every camera."""
+    names = scene.sequences_of("train")
+    if scene.kind == "synthetic":
+        return np.concatenate([scene.regions[n] for n in names], axis=1)[..., ::stride, ::stride]
+    return projected_labels(scene, training_frames(scene), range(scene.num_cameras), stride)
+
+
+def projected_labels(scene: Scene, pairs, cameras, stride: int = 1) -> np.ndarray:
+    """(K, P, H / stride, W / stride) int8 region labels of (sequence, frame) `pairs` seen by
+    `cameras`: the tracked mesh's face regions projected into each view (what a user has,
+    never an evaluation's truth). A synthetic scene's stored labels are that projection
+    already; a capture's are ray-cast from its posed mesh where the mesh is hit,
+    `UNKNOWN_REGION` where the capture's foreground shows what the mesh does not model (hair
+    beyond the scalp, a neck below it), -1 elsewhere."""
+    cameras, pairs = list(cameras), list(pairs)
+    if scene.kind == "synthetic":
+        return np.stack([np.stack([scene.regions[n][c, t, ::stride, ::stride]
+                                   for n, t in pairs]) for c in cameras])
+    from gae_jax.scene import raycast
+
+    vertices = posed_vertices(scene, pairs)
+    views = [scene.camera(c) for c in cameras]
+    rays = [{(0.5, 0.5): _strided(r[(0.5, 0.5)], scene.height, scene.width, stride)}
+            for r in raycast.ray_sets(views, 1)]
+    faces = np.asarray(scene.model.faces)
+    grey = np.zeros((vertices.shape[1], 3))
+    height, width = -(-scene.height // stride), -(-scene.width // stride)
+    labels = []
+    for j, (name, t) in enumerate(pairs):
+        hits = raycast.raycast_views(vertices[j], faces, grey, scene.face_regions, views,
+                                     rays=rays, shape=(height, width))
+        projected = np.stack([v.regions for v in hits])
+        foreground = scene.regions[name][cameras, t, ::stride, ::stride] >= 0
+        labels.append(np.where(projected >= 0, projected,
+                               np.where(foreground, UNKNOWN_REGION, -1)).astype(np.int8))
+    return np.stack(labels, axis=1)
+
+
+def _strided(rays, height: int, width: int, stride: int):
+    """Every `stride`-th pixel's ray of a camera's (H*W, 3) origins and directions."""
+    return tuple(a.reshape(height, width, 3)[::stride, ::stride].reshape(-1, 3) for a in rays)
+
+
 def stacked_params(scene: Scene, names, identity: str = "A") -> flame.FlameParams:
     """FlameParams with a leading frame axis over all frames of the named sequences."""
     frames = [scene.sequences[n].params(scene.shapes[identity], t) for n in names

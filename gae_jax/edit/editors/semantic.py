@@ -1,15 +1,27 @@
 """The built-in semantic editor: recolour or pattern named regions of a render.
 
-The instruction is read by `instructions.parse` (a region word, a colour word and optionally
-"stripes": "turn the lips blue", "add green stripes to the skin").
+The instruction is read by `instructions.parse` (a region, a colour and optionally "stripes":
+"turn the lips navy blue", "add green stripes to the skin").
 
-The 2D edit keeps the shading and changes the albedo: a pixel of the region becomes
-colour x luminance(original pixel) / luminance(region albedo), the shading read from the
-original (unedited) image the editor is conditioned on, as InstructPix2Pix is. (Reading it from
-the render instead feeds back: once the render is partly recoloured its luminance no longer
-measures shading, and a darker target colour darkens the next target, without end.) Regions come from `context["regions"]`
-(labels rendered from the avatar's Gaussians, i.e. what is visible); stripes need
-`context["canonical"]` (head-space positions per pixel) so that they stick to the head.
+The 2D edit keeps the shading and changes the albedo: a pixel of the region becomes colour x
+shading. Without `context["normals"]` the shading is the pixel's luminance over the region's
+nominal albedo (`albedo`): exact for an untextured region, blotchy for a textured one (the
+MakeHuman hair and brows are strokes of hair and skin colour). With head-space normals of the
+render, the editor also fits a Lambertian lighting to the image, as face reconstructions do
+(DECA, after Ramamoorthi and Hanrahan: nine spherical harmonics of the normal, robust least
+squares over the interior pixels of every region whose albedo it knows, `shading`), and keeps
+a pixel's own ratio only where it is a plausible shading that agrees with that light
+(`shading.trust_ratio`): textured and dark regions get the named colour evenly shaded, uniform
+ones stay exact. Either way the shading is read from the original (unedited) image the editor
+is conditioned on, as InstructPix2Pix is: read from the current render, it feeds back (a darker
+target colour darkens the next target, without end).
+
+Regions come from `context["regions"]` (the training view's projected mesh labels, or labels
+rendered from the avatar's Gaussians); stripes need `context["canonical"]` (head-space positions
+per pixel) so that they stick to the head. With `context["coverage"]` (each region's composited
+weight in the avatar's render), a pixel on the region's outline -- part region, part neighbour
+-- changes by the region's share of the recolour only (its old colour taken as albedo x light),
+as a perfect editor's antialiased edge would.
 
 Outside the edited region the editor returns the render it edits (`keeps="render"`, the default:
 a diffusion editor's output follows its input) or the original image (`keeps="original"`: what
@@ -18,15 +30,19 @@ outside the region -- a halo of recoloured Gaussians, drift -- comes back as its
 is never corrected; see the README's ablation and stability findings.
 
 `noise` in [0, 1] imitates a diffusion editor's inconsistency, all drawn from the key: per-call
-colour jitter, a mask grown or shrunk by up to 2 px, a shift by up to 2 px, an occasional partial
-edit (a random half of the region, probability 0.25 noise), and a global tone change.
+colour jitter, the region's outline grown or shrunk and shifted by up to `4 noise` pixels scaled
+by the region's size (`min(1, thickness / 16 px)`, the thickness being the widest inscribed
+disk's diameter: a 3-px iris moves by a fraction of a pixel, the skin by up to 1.2 px at the
+default noise), an occasional partial edit (a random half of the region, probability 0.25
+noise), and a global tone change.
 
-`bleed` (pixels, default 0) imitates how a diffusion edit spills over a region's silhouette: the
-edit's colour fades out over `bleed` px across the region's outline onto whatever borders it,
-and recolours fully what lies behind the region (`BEHIND`: the mouth, teeth and tongue behind
-the lips; the eyes behind the eyelids' skin) within 3 x `bleed` px of it, wherever the render
-shows them. This is the leak WABE is meant to stop: the ideal edit never recolours those pixels.
-Spilled pixels keep their own shading (luminance over their own region's albedo).
+`bleed` (pixels at full size, scaled like the outline's jitter, default 0) imitates how a
+diffusion edit spills over a region's silhouette: the edit's colour fades out over `bleed` px
+across the region's outline onto whatever borders it, and recolours fully what lies behind the
+region (`BEHIND`: the mouth, teeth and tongue behind the lips; the eyes behind the eyelids'
+skin) within 3 x `bleed` px of it, wherever the render shows them. This is the leak WABE is
+meant to stop: the ideal edit never recolours those pixels. Spilled pixels keep their own
+shading (luminance over their own region's albedo).
 
 `modes` (default 1) makes the editor multimodal, as a diffusion editor is when several answers
 fit a prompt: each call picks one of `modes` equally likely answers (m drawn from the key,
@@ -47,12 +63,16 @@ import jax
 import numpy as np
 
 from gae_jax.edit.editors.base import as_image
+from gae_jax.edit.editors.shading import shading_map, trust_ratio
 from gae_jax.instructions import mode_of, parse, stripe_on
 from gae_jax.model import head
 
 LUMA = np.array([0.299, 0.587, 0.114], np.float32)
 
 KEEPS = ("render", "original")
+OUTLINE_JITTER = 4.0  # px the outline moves at noise 1 for a region of full size
+FULL_SIZE_THICKNESS = 16.0  # px: thinner regions' outlines (and bleed) move proportionally less
+THIN = 10  # interior pixels below which a region is judged on all its pixels (an iris)
 # What an edit of a region bleeds into when visible (`bleed`): the regions it occludes.
 BEHIND = {"lips": ("mouth", "teeth", "tongue"), "skin": ("sclera", "iris", "pupil"),
           "iris": ("pupil",), "sclera": ("iris", "pupil")}
@@ -92,28 +112,66 @@ class SemanticEditor:
         regions = np.asarray(context["regions"])
         if regions.shape != image.shape[:2]:
             raise ValueError(f"context['regions'] must be {image.shape[:2]}, got {regions.shape}")
-        mask = regions == head.REGION_ID[instruction.region]
+        region_id = head.REGION_ID[instruction.region]
+        pattern = np.ones(regions.shape, bool)
         if instruction.stripes:
             if "canonical" not in context:
                 raise ValueError("stripes need context['canonical'], (H, W, 3) head-space "
                                  "positions of the render")
-            mask &= stripe_on(np.asarray(context["canonical"])[..., 1], phase)
+            pattern = stripe_on(np.asarray(context["canonical"])[..., 1], phase)
+        mask = (regions == region_id) & pattern
         keys = jax.random.split(key, 7)
         colour = np.asarray(instruction.colour, np.float32)
+        weight, shift = mask.astype(np.float32), (0.0, 0.0)
+        size = min(1.0, thickness(mask) / FULL_SIZE_THICKNESS)
         if self.noise > 0:
             colour = colour + 0.12 * self.noise * np.asarray(
                 jax.random.normal(keys[0], (3,)), np.float32)
-            mask = _jitter_mask(mask, self.noise, keys[1:6])
-        base = np.asarray(self.albedo[instruction.region], np.float32)
-        shade = (source @ LUMA) / max(float(base @ LUMA), 1e-3)
+            weight, shift = _jitter(mask, OUTLINE_JITTER * self.noise * size, keys[1:6],
+                                    self.noise)
+        colour = np.clip(colour, 0, 1)
+        shade, light = self.shading(source, regions, context.get("normals"),
+                                    instruction.region)
         outside = image if self.keeps == "render" else source
-        edited = np.where(mask[..., None], np.clip(colour, 0, 1) * shade[..., None], outside)
+        w = weight[..., None]
+        edited = w * colour * shade[..., None] + (1 - w) * outside
+        if context.get("coverage") is not None:
+            # On the outline a pixel is part region, part neighbour: only the region's share
+            # changes, by what recolouring it changes (its old colour: albedo x light).
+            share = _shifted(np.asarray(context["coverage"])[..., region_id], shift) * pattern
+            band = _outline_band(weight > 0.5)
+            base = np.asarray(self.albedo.get(instruction.region, colour), np.float32)
+            repaint = outside + share[..., None] * (colour - base) * light[..., None]
+            edited = np.where(band[..., None], repaint, edited)
         if self.bleed:
-            edited = self._bleed(edited, source, regions, mask, instruction.region,
-                                 np.clip(colour, 0, 1))
+            edited = self._bleed(edited, source, regions, weight > 0.5, instruction.region,
+                                 colour, self.bleed * size)
         if self.noise > 0:
             edited = edited * (1 + 0.04 * self.noise * float(jax.random.normal(keys[6])))
         return np.clip(edited, 0, 1).astype(np.float32)
+
+    def shading(self, source, regions, normals, region: str) -> tuple:
+        """((H, W) shading, (H, W) light) of the original image: the pixels' ratios or the
+        fitted lighting, as the module docstring says, and the light alone (the fit rescaled
+        to the region, `shading.trust_ratio`) when `normals` are given; else luminance over
+        `region`'s albedo, twice."""
+        luminance = {n: max(float(np.asarray(rgb) @ LUMA), 1e-3)
+                     for n, rgb in self.albedo.items() if n in head.REGION_ID}
+        if normals is not None:
+            normals = np.asarray(normals, np.float32)
+            known = np.full(regions.shape, -1.0, np.float32)
+            for name, value in luminance.items():
+                known[regions == head.REGION_ID[name]] = value
+            inner = _interior(regions)
+            ratio = (source @ LUMA) / luminance.get(region, 1.0)
+            fitted = shading_map(source, normals, inner & (known > 0), known)
+            if fitted is not None:
+                own = regions == head.REGION_ID.get(region, -2)
+                if (own & inner).sum() >= THIN:  # else a thin region: all its pixels
+                    own &= inner
+                return trust_ratio(ratio, *fitted, own)
+        ratio = (source @ LUMA) / luminance.get(region, max(float(LUMA.sum()), 1e-3))
+        return ratio, ratio
 
     def mode(self, key) -> int:
         """The mode (0 .. modes - 1) a call with `key` picks (0 when there is one)."""
@@ -121,17 +179,18 @@ class SemanticEditor:
             return 0
         return int(jax.random.randint(jax.random.fold_in(key, 0x6D6F), (), 0, self.modes))
 
-    def _bleed(self, edited, source, regions, mask, region, colour):
-        """`edited` with the region's colour spilled around `mask` (see the module docstring)."""
+    def _bleed(self, edited, source, regions, mask, region, colour, bleed):
+        """`edited` with the region's colour spilled `bleed` px around `mask` (see the module
+        docstring)."""
         import cv2
 
-        if not mask.any():
+        if not mask.any() or bleed <= 0:
             return edited
         distance = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2,
                                          cv2.DIST_MASK_PRECISE)
-        weight = np.clip(1.0 - distance / (self.bleed + 1.0), 0.0, 1.0)
+        weight = np.clip(1.0 - distance / (bleed + 1.0), 0.0, 1.0)
         behind = np.isin(regions, [head.REGION_ID[n] for n in BEHIND.get(region, ())])
-        weight = np.where(behind & (distance <= 3 * self.bleed), 1.0, weight)
+        weight = np.where(behind & (distance <= 3 * bleed), 1.0, weight)
         weight = np.where(mask, 0.0, weight)[..., None]
         own = np.ones(regions.shape, np.float32)
         for name, rgb in self.albedo.items():
@@ -141,24 +200,77 @@ class SemanticEditor:
         return (1.0 - weight) * edited + weight * spill
 
 
-def _jitter_mask(mask: np.ndarray, noise: float, keys) -> np.ndarray:
+def thickness(mask: np.ndarray) -> float:
+    """Diameter (px) of the widest disk inside an (H, W) bool mask (0 for an empty one)."""
     import cv2
 
-    reach = int(round(2 * noise))
-    if reach:
-        grow = int(jax.random.randint(keys[0], (), -reach, reach + 1))
-        kernel = np.ones((3, 3), np.uint8)
-        m = mask.astype(np.uint8)
-        if grow > 0:
-            m = cv2.dilate(m, kernel, iterations=grow)
-        elif grow < 0:
-            m = cv2.erode(m, kernel, iterations=-grow)
-        dy, dx = (int(v) for v in jax.random.randint(keys[1], (2,), -reach, reach + 1))
-        mask = np.roll(m.astype(bool), (dy, dx), axis=(0, 1))
+    if not mask.any():
+        return 0.0
+    inside = cv2.distanceTransform(np.pad(mask, 1).astype(np.uint8), cv2.DIST_L2,
+                                   cv2.DIST_MASK_PRECISE)
+    return 2.0 * float(inside.max())
+
+
+def _interior(regions: np.ndarray) -> np.ndarray:
+    """(H, W) bool: labelled pixels whose 3x3 neighbourhood has their label only (no mixed
+    colours of two regions or of the background)."""
+    import cv2
+
+    kernel = np.ones((3, 3), np.uint8)
+    lo = cv2.erode(regions.astype(np.int16) + 1, kernel, borderType=cv2.BORDER_REPLICATE)
+    hi = cv2.dilate(regions.astype(np.int16) + 1, kernel, borderType=cv2.BORDER_REPLICATE)
+    return (regions >= 0) & (lo == hi)
+
+
+def _signed_distance(mask: np.ndarray) -> np.ndarray:
+    """(H, W) float: distance (px) to the mask's outline, positive inside, so that the outline
+    sits at 0 and a pixel is inside where the value is above 0."""
+    import cv2
+
+    m = mask.astype(np.uint8)
+    inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return np.where(mask, inside - 0.5, 0.5 - outside).astype(np.float32)
+
+
+def _shifted(image: np.ndarray, shift: tuple) -> np.ndarray:
+    """(H, W) float image moved by (dy, dx) px with linear interpolation (edges repeated)."""
+    import cv2
+
+    if shift == (0.0, 0.0):
+        return np.asarray(image, np.float32)
+    dy, dx = shift
+    return cv2.warpAffine(np.asarray(image, np.float32), np.float32([[1, 0, dx], [0, 1, dy]]),
+                          image.shape[::-1], flags=cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+
+
+def _outline_band(mask: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels on either side of the mask's outline (a 3x3 neighbourhood holds
+    both inside and outside pixels)."""
+    import cv2
+
+    m = mask.astype(np.uint8)
+    kernel = np.ones((3, 3), np.uint8)
+    return cv2.dilate(m, kernel).astype(bool) & ~cv2.erode(m, kernel).astype(bool)
+
+
+def _jitter(mask: np.ndarray, reach: float, keys, noise: float) -> tuple:
+    """((H, W) float weight in [0, 1], (dy, dx) shift): `mask` grown (or shrunk) and shifted
+    by amounts drawn uniformly in [-reach, reach] px (sub-pixel: the signed distance is shifted
+    with linear interpolation and clipped to a one-pixel ramp), then with probability
+    0.25 noise cut to a random half."""
+    weight, shift = mask.astype(np.float32), (0.0, 0.0)
+    if reach > 0 and mask.any():
+        grow = float(jax.random.uniform(keys[0], (), minval=-reach, maxval=reach))
+        dy, dx = (float(v) for v in jax.random.uniform(keys[1], (2,), minval=-reach,
+                                                         maxval=reach))
+        shift = (dy, dx)
+        weight = np.clip(_shifted(_signed_distance(mask), shift) + grow + 0.5, 0.0, 1.0)
     if float(jax.random.uniform(keys[2])) < 0.25 * noise and mask.any():
         ys, xs = np.nonzero(mask)
         angle = float(jax.random.uniform(keys[3], (), maxval=2 * np.pi))
         yy, xx = np.mgrid[:mask.shape[0], :mask.shape[1]]
         side = (xx - xs.mean()) * np.cos(angle) + (yy - ys.mean()) * np.sin(angle) > 0
-        mask = mask & side
-    return mask
+        weight = weight * side
+    return weight, shift
