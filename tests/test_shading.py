@@ -84,13 +84,15 @@ def test_a_pixels_ratio_is_kept_where_it_is_plausible_light_and_the_fit_elsewher
     light = np.full((10, 10), 0.5, np.float32)
     uniform = np.full((10, 10), 0.4, np.float32)
     region = np.ones((10, 10), bool)
-    shade, scaled = shading.trust_ratio(uniform, light, (0.3, 1.0), region)
+    shade, scaled, is_uniform = shading.trust_ratio(uniform, light, (0.3, 1.0), region)
     np.testing.assert_allclose(shade, uniform)
     np.testing.assert_allclose(scaled, 0.4, rtol=1e-5)
+    assert is_uniform == 1.0
     textured = np.full((10, 10), 0.5, np.float32)
     textured[:, :4] = 3.0  # skin paint in dark hair: a ratio no light gives
     textured[:, 4] = 0.65  # 30 % off the light: not kept
-    shade, scaled = shading.trust_ratio(textured, light, (0.3, 1.0), region)
+    shade, scaled, is_uniform = shading.trust_ratio(textured, light, (0.3, 1.0), region)
     np.testing.assert_allclose(shade[:, :5], 0.5)
     np.testing.assert_allclose(shade[:, 5:], 0.5)
     np.testing.assert_allclose(scaled, light)
+    assert is_uniform == 0.0

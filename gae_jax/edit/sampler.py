@@ -77,9 +77,8 @@ def editor_context(view, where: tuple, labels=None) -> dict:
     where: (camera, sequence, frame); labels: (H, W) region labels of the view to use instead
     of the avatar's rendered ones (a training view's projected mesh labels)."""
     regions = np.asarray(view.regions) if labels is None else np.maximum(labels, -1)
-    return dict(regions=regions, coverage=np.asarray(view.coverage),
-                canonical=np.asarray(view.coords), normals=np.asarray(view.normals),
-                view=tuple(where))
+    return dict(regions=regions, canonical=np.asarray(view.coords),
+                normals=np.asarray(view.normals), view=tuple(where))
 
 
 def showing_views(scene, region: tuple, stride: int | None = None) -> np.ndarray | None:

@@ -178,14 +178,12 @@ class Preview(NamedTuple):
     """What the 2D editor and the composite read of one view, from one composite pass.
 
     image: (H, W, 3); regions: (H, W) int region label (the region of the largest composited
-    weight, -1 where alpha <= 1/2); coverage: (H, W, R) each region's composited weight (how
-    much of the pixel its Gaussians cover); coords, normals: (H, W, 3) head-space position and
-    unit normal (alpha-normalised); alpha: (H, W) the avatar's coverage.
+    weight, -1 where alpha <= 1/2); coords, normals: (H, W, 3) head-space position and unit
+    normal (alpha-normalised); alpha: (H, W) the avatar's coverage.
     """
 
     image: jax.Array
     regions: jax.Array
-    coverage: jax.Array
     coords: jax.Array
     normals: jax.Array
     alpha: jax.Array
@@ -208,7 +206,7 @@ def make_preview(blend: wabe.Blend):
             out.alpha, 1e-6)[..., None]
         normals = out.image[..., 6 + num_regions:9 + num_regions]
         normals = normals / jnp.maximum(jnp.linalg.norm(normals, axis=-1, keepdims=True), 1e-6)
-        return Preview(out.image[..., :3], regions, votes, coords, normals, out.alpha)
+        return Preview(out.image[..., :3], regions, coords, normals, out.alpha)
 
     def preview(params, rig: Rig, cam, frame, canonical):
         return preview_frame(params, one_frame(rig, frame), cam, canonical)

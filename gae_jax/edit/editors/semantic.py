@@ -18,10 +18,12 @@ target colour darkens the next target, without end).
 
 Regions come from `context["regions"]` (the training view's projected mesh labels, or labels
 rendered from the avatar's Gaussians); stripes need `context["canonical"]` (head-space positions
-per pixel) so that they stick to the head. With `context["coverage"]` (each region's composited
-weight in the avatar's render), a pixel on the region's outline -- part region, part neighbour
--- changes by the region's share of the recolour only (its old colour taken as albedo x light),
-as a perfect editor's antialiased edge would.
+per pixel) so that they stick to the head. A pixel on a thin uniform region's outline -- part
+region, part neighbour -- changes by the region's share of the recolour only, the share matted
+from the image (its old colour: albedo x light; the neighbour's: seen two pixels out), as a
+perfect editor's antialiased edge would (in proportion as the region is thin: 1 - its size
+factor below); a textured region's old colour is not known, and its outline is painted as its
+inside, as a wide region's is.
 
 Outside the edited region the editor returns the render it edits (`keeps="render"`, the default:
 a diffusion editor's output follows its input) or the original image (`keeps="original"`: what
@@ -73,6 +75,8 @@ KEEPS = ("render", "original")
 OUTLINE_JITTER = 4.0  # px the outline moves at noise 1 for a region of full size
 FULL_SIZE_THICKNESS = 16.0  # px: thinner regions' outlines (and bleed) move proportionally less
 THIN = 10  # interior pixels below which a region is judged on all its pixels (an iris)
+MATTE_CONTRAST = 0.1  # colour distance below which region and neighbour are too alike to matte
+MATTE_RESIDUAL = 0.25  # off the two colours' line by more than this share: not a mix of them
 # What an edit of a region bleeds into when visible (`bleed`): the regions it occludes.
 BEHIND = {"lips": ("mouth", "teeth", "tongue"), "skin": ("sclera", "iris", "pupil"),
           "iris": ("pupil",), "sclera": ("iris", "pupil")}
@@ -130,19 +134,26 @@ class SemanticEditor:
             weight, shift = _jitter(mask, OUTLINE_JITTER * self.noise * size, keys[1:6],
                                     self.noise)
         colour = np.clip(colour, 0, 1)
-        shade, light = self.shading(source, regions, context.get("normals"),
-                                    instruction.region)
+        shade, light, uniform = self.shading(source, regions, context.get("normals"),
+                                             instruction.region)
         outside = image if self.keeps == "render" else source
         w = weight[..., None]
         edited = w * colour * shade[..., None] + (1 - w) * outside
-        if context.get("coverage") is not None:
+        matte = uniform * (1.0 - size) if context.get("normals") is not None else 0.0
+        if matte > 0:
             # On the outline a pixel is part region, part neighbour: only the region's share
-            # changes, by what recolouring it changes (its old colour: albedo x light).
-            share = _shifted(np.asarray(context["coverage"])[..., region_id], shift) * pattern
-            band = _outline_band(weight > 0.5)
+            # changes, by what recolouring it changes. With the region's old colour known (a
+            # uniform region: albedo x light) and the neighbour's seen nearby, the share is the
+            # pixel's alpha matte (`_matte`). That matters for a thin region, most of whose
+            # pixels are on its outline; a wide one's is painted as its inside (its light and
+            # texture are not known well enough for a matte that helps: measured on the skin).
+            inside = weight > 0.5
             base = np.asarray(self.albedo.get(instruction.region, colour), np.float32)
+            old = base * light[..., None]
+            share = _matte(source, inside, old) * pattern
             repaint = outside + share[..., None] * (colour - base) * light[..., None]
-            edited = np.where(band[..., None], repaint, edited)
+            band = _outline_band(inside)[..., None]
+            edited = np.where(band, matte * repaint + (1 - matte) * edited, edited)
         if self.bleed:
             edited = self._bleed(edited, source, regions, weight > 0.5, instruction.region,
                                  colour, self.bleed * size)
@@ -151,10 +162,11 @@ class SemanticEditor:
         return np.clip(edited, 0, 1).astype(np.float32)
 
     def shading(self, source, regions, normals, region: str) -> tuple:
-        """((H, W) shading, (H, W) light) of the original image: the pixels' ratios or the
-        fitted lighting, as the module docstring says, and the light alone (the fit rescaled
-        to the region, `shading.trust_ratio`) when `normals` are given; else luminance over
-        `region`'s albedo, twice."""
+        """((H, W) shading, (H, W) light, uniformity) of the original image: the pixels' ratios
+        or the fitted lighting, as the module docstring says, the light alone (the fit
+        rescaled to the region) and whether the region is uniform or textured
+        (`shading.trust_ratio`) when `normals` are given; else luminance over `region`'s
+        albedo, twice, and uniform."""
         luminance = {n: max(float(np.asarray(rgb) @ LUMA), 1e-3)
                      for n, rgb in self.albedo.items() if n in head.REGION_ID}
         if normals is not None:
@@ -171,7 +183,7 @@ class SemanticEditor:
                     own &= inner
                 return trust_ratio(ratio, *fitted, own)
         ratio = (source @ LUMA) / luminance.get(region, max(float(LUMA.sum()), 1e-3))
-        return ratio, ratio
+        return ratio, ratio, 1.0
 
     def mode(self, key) -> int:
         """The mode (0 .. modes - 1) a call with `key` picks (0 when there is one)."""
@@ -243,6 +255,35 @@ def _shifted(image: np.ndarray, shift: tuple) -> np.ndarray:
     return cv2.warpAffine(np.asarray(image, np.float32), np.float32([[1, 0, dx], [0, 1, dy]]),
                           image.shape[::-1], flags=cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_REPLICATE)
+
+
+def _matte(image: np.ndarray, inside: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """(H, W) share of each pixel near the outline of the (H, W) bool region `inside` that the
+    region covers, from the (H, W, 3) image: pixel = share x old + (1 - share) x neighbour,
+    with `old` (H, W, 3) the region's colour and the neighbour's colour the mean of the pixels
+    two pixels outside the region within a 5 x 5 window (alpha matting with known colours,
+    the least-squares share, kept on the labels' side of one half: they come from the pixel's
+    centre). Where the two colours are too alike to tell, the pixel is no mix of them (its
+    distance to their line beyond `MATTE_RESIDUAL` of theirs: texture, a third colour) or no
+    neighbour is seen, the labels decide: 1 inside, 0 outside."""
+    import cv2
+
+    m = inside.astype(np.uint8)
+    ring = (cv2.dilate(m, np.ones((5, 5), np.uint8)) & ~cv2.dilate(m, np.ones((3, 3), np.uint8))
+            ).astype(np.float32)
+    count = cv2.boxFilter(ring, -1, (5, 5), normalize=False)
+    total = cv2.boxFilter(np.asarray(image, np.float32) * ring[..., None], -1, (5, 5),
+                          normalize=False)
+    neighbour = total / np.maximum(count, 1.0)[..., None]
+    contrast = old - neighbour
+    strength = np.sum(contrast * contrast, -1)
+    share = np.sum((image - neighbour) * contrast, -1) / np.maximum(strength, 1e-6)
+    mixed = neighbour + np.clip(share, 0.0, 1.0)[..., None] * contrast
+    residual = np.sum((image - mixed) ** 2, -1)
+    share = np.where(inside, np.clip(share, 0.5, 1.0), np.clip(share, 0.0, 0.5))
+    sure = ((count > 0) & (strength > MATTE_CONTRAST ** 2)
+            & (residual < MATTE_RESIDUAL ** 2 * strength))
+    return np.where(sure, share, inside.astype(np.float32))
 
 
 def _outline_band(mask: np.ndarray) -> np.ndarray:

@@ -77,8 +77,8 @@ def shading_map(image: np.ndarray, normals: np.ndarray, fit_mask: np.ndarray,
 
 def trust_ratio(ratio: np.ndarray, light: np.ndarray, plausible: tuple,
                 region: np.ndarray) -> tuple:
-    """((H, W) shading, (H, W) light) of a region: the shading is the pixel's own luminance
-    ratio to the region's albedo
+    """((H, W) shading, (H, W) light, uniformity in [0, 1]) of a region: the shading is the
+    pixel's own luminance ratio to the region's albedo
     (`ratio`, exact where the albedo is what the editor assumes) where it agrees with the
     fitted `light`, the light where it does not (texture the albedo does not explain: a blush,
     skin paint in the hair, dark strokes in the brows).
@@ -91,13 +91,14 @@ def trust_ratio(ratio: np.ndarray, light: np.ndarray, plausible: tuple,
     a region whose normals it saw little of, e.g. eyeballs facing away from the skin's), in a
     textured one it is taken as fitted. A pixel then keeps its ratio within a factor
     exp(AGREE) of that light and takes the light beyond exp(DISAGREE) (linear blends in the log
-    gap and in the fraction between). The light returned is that light (rescaled or not)."""
+    gap and in the fraction between). The light returned is that light (rescaled or not), the
+    uniformity 1 for a uniform region, 0 for a textured one."""
     low, high = plausible
     r = np.maximum(ratio, 1e-6)
     outside = np.maximum(np.log(low / r), np.log(r / high)).clip(min=0.0)
     plausible_w = np.clip(1.0 - outside / MARGIN, 0.0, 1.0)
     log_gap = np.log(r / np.maximum(light, 1e-6))
-    scale = 0.0
+    scale, uniform = 0.0, 1.0
     inside = region & (plausible_w >= 0.5)
     if region.any():
         textured = float(np.mean(plausible_w[region] < 0.5))
@@ -107,4 +108,4 @@ def trust_ratio(ratio: np.ndarray, light: np.ndarray, plausible: tuple,
     agree_w = np.clip((DISAGREE - np.abs(log_gap - scale)) / (DISAGREE - AGREE), 0.0, 1.0)
     w = plausible_w * agree_w
     light = (np.exp(scale) * light).astype(np.float32)
-    return (w * ratio + (1 - w) * light).astype(np.float32), light
+    return (w * ratio + (1 - w) * light).astype(np.float32), light, uniform
