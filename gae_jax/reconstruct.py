@@ -61,7 +61,8 @@ def run(config: ReconstructConfig, workdir: str, scene: Scene, resume: bool = Fa
                           resume=resume, progress=progress)
     seconds = time.perf_counter() - start
     avatar_io.save_avatar_folder(workdir, avatar, scene.shapes["A"],
-                                 stacked_params(scene, scene.sequences_of("train")))
+                                 stacked_params(scene, scene.sequences_of("train")),
+                                 scene.static_offsets.get("A"), scene.model.num_vertices)
     report = dict(config=dataclasses.asdict(config), fit_seconds=round(seconds, 1),
                   gaussians=int(avatar.num), final=history[-1] if history else {})
     if scene.held_out_cameras:

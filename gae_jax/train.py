@@ -80,11 +80,12 @@ def run(config: EditConfig, workdir: str, scene=None, original=None, resume: boo
         progress: bool = True, video: bool = True,
         progress_fn: Optional[Callable[[int, dict], None]] = None,
         scene_config: SceneConfig = SceneConfig(), timings: Optional[dict] = None,
-        keep_checkpoint: bool = False) -> dict:
+        keep_checkpoint: bool = False, avatar_extra: Optional[dict] = None) -> dict:
     """The whole job into `workdir`; returns the metrics written to `metrics.json`. `scene` and
     `original` default to `load_scene(scene_config)` and its cached reconstruction; `timings`
-    holds what the caller already spent (the CLI's loading). A finished run removes its
-    checkpoint unless `keep_checkpoint`."""
+    holds what the caller already spent (the CLI's loading); `avatar_extra`: flame_param keys
+    of an input avatar the written avatars carry on. A finished run removes its checkpoint
+    unless `keep_checkpoint`."""
     os.makedirs(workdir, exist_ok=True)
     timings = dict(timings or {})
     t0 = time.perf_counter()
@@ -102,7 +103,7 @@ def run(config: EditConfig, workdir: str, scene=None, original=None, resume: boo
     timings["edit_s"] = round(time.perf_counter() - t1, 1)
     t2 = time.perf_counter()
     bar = tqdm(total=4, desc="outputs: avatar files", disable=not progress, leave=False)
-    outputs.write_avatar_files(session, edited, workdir)
+    outputs.write_avatar_files(session, edited, workdir, avatar_extra)
     bar.update(1)
     bar.set_description("outputs: grid")
     outputs.write_grid(session, edited, os.path.join(workdir, "grid.png"),
@@ -165,12 +166,15 @@ def main(argv=None) -> int:
             print("note: no --avatar given; reconstructing one from --data first",
                   file=sys.stderr)
         scene = load_scene(scene_config, progress=True)
-        original = None
+        original, extra = None, None
         if args.avatar:
             original = avatar_io.load_bound_avatar(
                 os.path.join(args.avatar, "point_cloud.ply"), scene.face_regions)
+            params = os.path.join(args.avatar, "flame_param.npz")
+            extra = avatar_io.extra_flame_params(params) if os.path.isfile(params) else None
         inputs.update(config=config, scene=scene, original=original, scene_config=scene_config,
-                      timings=dict(load_s=round(time.perf_counter() - start, 1)))
+                      avatar_extra=extra, timings=dict(load_s=round(time.perf_counter() - start,
+                                                                     1)))
         return 0
 
     if cli.main_guard(prepare):
@@ -178,7 +182,7 @@ def main(argv=None) -> int:
     metrics = run(inputs["config"], args.out, inputs["scene"], inputs["original"],
                   resume=args.resume, video=not args.no_video,
                   scene_config=inputs["scene_config"], timings=inputs["timings"],
-                  keep_checkpoint=args.keep_checkpoint)
+                  keep_checkpoint=args.keep_checkpoint, avatar_extra=inputs["avatar_extra"])
     print(report.summary_table(metrics["evaluation"]))
     print(json.dumps(dict(out=args.out, timings=metrics["timings"]), indent=1))
     return 0

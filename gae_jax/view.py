@@ -225,8 +225,10 @@ class Viewer:
 
     def current_params(self):
         """FlameParams of the sliders with the chosen identity's shape."""
-        shape = self.viewable.shapes[self.identity.value]
-        return pose.params_of_values(self.values, shape, self.viewable.model.num_expr)
+        identity = self.identity.value
+        return pose.params_of_values(self.values, self.viewable.shapes[identity],
+                                     self.viewable.model.num_expr,
+                                     self.viewable.static_offsets.get(identity))
 
     def _picture(self, camera, params) -> np.ndarray:
         v = self.viewable

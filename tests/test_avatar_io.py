@@ -92,7 +92,12 @@ def test_flame_params_round_trip_and_errors(tmp_path):
         translation=jnp.asarray(rng.normal(size=(t, 3)), jnp.float32))
     shape = np.arange(3, dtype=np.float32)
     path = str(tmp_path / "flame_param.npz")
-    avatar_io.save_flame_params(path, shape, frames)
+    avatar_io.save_flame_params(path, shape, frames, num_vertices=7)
+    with np.load(path) as f:  # GaussianAvatars' nine keys, in its order, float32
+        assert f.files == ["shape", "expr", "rotation", "neck_pose", "jaw_pose", "eyes_pose",
+                           "translation", "static_offset", "dynamic_offset"]
+        assert all(f[k].dtype == np.float32 for k in f.files)
+        assert f["static_offset"].shape == (1, 7, 3) and f["dynamic_offset"].shape == (t, 7, 3)
     loaded_shape, loaded = avatar_io.load_flame_params(path)
     np.testing.assert_array_equal(loaded_shape, shape)
     for name in ("expr", "rotation", "neck", "jaw", "eyes", "translation"):
@@ -113,9 +118,14 @@ def test_plain_rgb_avatar_round_trips_as_sh_dc_with_the_same_colours(tmp_path):
                           assets.face_regions, sh_degree=None)
     path = str(tmp_path / "point_cloud.ply")
     avatar_io.save_avatar_ply(a, path)
-    assert not any(k.startswith("f_rest_") for k in read_ply(path))
+    rest = [v for k, v in read_ply(path).items() if k.startswith("f_rest_")]
+    assert len(rest) == 45 and not np.any(rest)  # the degree-3 layout, higher bands zero
     b = avatar_io.load_avatar_ply(path, assets.face_regions)
-    assert b.colors.shape == (a.num, 1, 3)
+    assert b.colors.shape == (a.num, 16, 3)
+    np.testing.assert_allclose(avatar_io.load_bound_avatar(path, assets.face_regions).colors,
+                               a.colors, atol=1e-6)  # read back to edit: plain colours again
+    avatar_io.save_avatar_ply(a, path, sh_degree=0)
+    assert not any(k.startswith("f_rest_") for k in read_ply(path))
     camera = make_camera(look_at_w2c([0, 0, 0.55], [0, -0.01, 0], up=(0, 1, 0)), 8, 8)
     g_b = av.deform(b, model.v_template, model.faces)
     np.testing.assert_allclose(splat.colors_towards(g_b, camera), np.asarray(a.colors),

@@ -178,7 +178,8 @@ def test_corruption_sweep_over_every_file_the_project_reads(small, tmp_path):
 
     params = tmp_path / "flame_param.npz"
     avatar_io.save_flame_params(str(params), scene.shapes["A"],
-                                stacked_params(scene, scene.sequences_of("train")))
+                                stacked_params(scene, scene.sequences_of("train")),
+                                num_vertices=scene.model.num_vertices)
     sweep(params, params.read_bytes(), lambda p: avatar_io.load_flame_params(str(p)),
           (ValueError,), 1)
 

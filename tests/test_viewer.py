@@ -47,7 +47,8 @@ def tiny_run_folder(path, num_expr_frames: int = 4):
                                                               "regions")},
                           "colors": avatar.colors * 0.5})
     for name, a in (("edited_avatar", edited), ("original_avatar", avatar)):
-        avatar_io.save_avatar_folder(str(path / name), a, shapes["A"], frames_a)
+        avatar_io.save_avatar_folder(str(path / name), a, shapes["A"], frames_a,
+                                     num_vertices=model.num_vertices)
     intrinsics, w2c = synthetic.camera_rig(9, RIG_SIZE)
     evalset = truth.EvalSet("turn the lips blue", "lips", "ideal edit", np.asarray(model.faces),
                             assets.face_regions, intrinsics, w2c, np.ones(3), RIG_SIZE, RIG_SIZE,
@@ -218,7 +219,8 @@ def test_motion_file_round_trips_and_refuses_what_does_not_fit(tmp_path):
     shapes = {"A": np.zeros(model.num_shape), "B": np.ones(model.num_shape)}
     path = str(tmp_path / "motion.npz")
     motion_io.save(path, sequences, shapes)
-    loaded, loaded_shapes = motion_io.load(path, model.num_expr, model.num_shape)
+    loaded, loaded_shapes, offsets = motion_io.load(path, model.num_expr, model.num_shape)
+    assert offsets == {}
     assert list(loaded) == list(sequences)
     for name, seq in sequences.items():
         tree_allclose(stacked_params_of(loaded[name], shapes), stacked_params_of(seq, shapes))

@@ -145,17 +145,21 @@ def write_video(session: Session, edited: av.Avatar, path: str, fps: int = 24,
     os.replace(tmp, path)
 
 
-def write_avatar_files(session: Session, edited: av.Avatar, out_dir: str) -> None:
+def write_avatar_files(session: Session, edited: av.Avatar, out_dir: str,
+                       extra: dict | None = None) -> None:
     """`edited_avatar/` and `original_avatar/` (GaussianAvatars folders with the held-out or
-    training motion), `edited_posed.ply` (world space, first frame of that motion) and
+    training motion, the identity's static offset and `extra` flame_param keys: an input
+    avatar's own), `edited_posed.ply` (world space, first frame of that motion) and
     `motion.npz` (every sequence and identity of the scene, for the viewer)."""
     s = session
     names = s.scene.sequences_of("self_reenactment") or s.scene.sequences_of("train")
     motion = stacked_params(s.scene, names)
     for folder, avatar in (("edited_avatar", edited), ("original_avatar", s.original)):
         avatar_io.save_avatar_folder(os.path.join(out_dir, folder), avatar, s.scene.shapes["A"],
-                                     motion)
-    motion_io.save(os.path.join(out_dir, motion_io.FILE_NAME), s.scene.sequences, s.scene.shapes)
+                                     motion, s.scene.static_offsets.get("A"),
+                                     s.scene.model.num_vertices, extra)
+    motion_io.save(os.path.join(out_dir, motion_io.FILE_NAME), s.scene.sequences, s.scene.shapes,
+                   s.scene.static_offsets)
     verts = posed_vertices(s.scene, [(names[0], 0)])[0]
     avatar_io.save_posed_ply(av.deform(edited, jnp.asarray(verts), s.scene.model.faces),
                              os.path.join(out_dir, "edited_posed.ply"))

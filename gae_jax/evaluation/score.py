@@ -61,8 +61,9 @@ def evaluate_avatars(evalset: EvalSet, edited: Avatar, original: Avatar, tile_ca
         clip_before = render_frames(render, original, evalset, clip_frames, tile_capacity)[:, 0]
         masks = metrics.region_masks(clip_frames.regions[:, 0], region)
         truth = clip_frames.truth[:, 0]
+        # A clip of one frame (a capture's one-timestep test split) has no flicker.
         scores["flicker"] = {
-            who: {m: round(metrics.flicker(c, truth, masks[m]), 5)
+            who: {m: (round(metrics.flicker(c, truth, masks[m]), 5) if len(truth) > 1 else None)
                   for m in ("whole", "edited") if m in masks}
             for who, c in (("ours", clip_ours), ("original_avatar", clip_before))}
         if clip is not None:

@@ -88,6 +88,23 @@ class FlameParams:
         return jnp.concatenate([self.rotation, self.neck, self.jaw, self.eyes], axis=-1)
 
 
+FLAME_VERTICES, TEETH_VERTICES = 5023, 120  # FLAME's, and GaussianAvatars' teeth's
+
+
+def fit_static_offset(offset, num_vertices: int) -> np.ndarray:
+    """(V, 3) float32 static offset for a model of V vertices from an (R, 3) or (1, R, 3) one:
+    rows beyond R are zero (as GaussianAvatars pads a FLAME-sized offset for its teeth); the
+    teeth's rows are dropped for plain FLAME; ValueError for any other R > V (an offset of
+    another model)."""
+    rows = np.asarray(offset, np.float32).reshape(-1, 3)
+    if len(rows) == FLAME_VERTICES + TEETH_VERTICES and num_vertices == FLAME_VERTICES:
+        rows = rows[:FLAME_VERTICES]
+    if len(rows) > num_vertices:
+        raise ValueError(f"static_offset has {len(rows)} rows, the model {num_vertices} "
+                         "vertices (an offset of another model?)")
+    return np.concatenate([rows, np.zeros((num_vertices - len(rows), 3), np.float32)])
+
+
 def zero_params(model: FlameModel, dtype=jnp.float32) -> FlameParams:
     """Neutral shape and expression, zero pose and translation."""
     z3 = jnp.zeros(3, dtype)

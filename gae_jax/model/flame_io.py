@@ -1,4 +1,4 @@
-"""FLAME model files, read safely and written, and GaussianAvatars' teeth.
+"""FLAME model files, read safely and written (GaussianAvatars' teeth: `teeth`).
 
 `load_flame` reads the FLAME 2020 `generic_model.pkl` / FLAME 2023 `flame2023.pkl` pickles
 (shapedirs holds 300 identity + 100 expression columns; J_regressor may be a scipy sparse matrix;
@@ -19,7 +19,7 @@ import pickle
 import jax.numpy as jnp
 import numpy as np
 
-from gae_jax.model.flame import JAW_JOINT, NECK_JOINT, FlameModel
+from gae_jax.model.flame import FlameModel
 from gae_jax.model.head import REGION_ID
 from gae_jax.util.fileio import atomic_write_bytes
 
@@ -286,70 +286,3 @@ def face_regions_from_masks(faces, masks: dict, num_vertices: int) -> np.ndarray
         inside[idx] = True
         regions[inside[faces].all(axis=1)] = REGION_ID[region]
     return regions
-
-
-# ----------------------------------------------------------------------------------------------
-# Teeth
-
-
-def add_teeth(model: FlameModel, upper_ring, lower_ring) -> FlameModel:
-    """Adds GaussianAvatars-style teeth: 8 rows of vertices built from the two outer lip rings.
-
-    With d the mean distance between corresponding ring vertices: the middle row is the rings'
-    midpoint with a common (mean) height, pushed back by 1.5 d; the biting edges are the middle
-    +- 0.1 d in y, the roots a further +- 2 d; the lower teeth sit 0.4 d further back; each row
-    has a back copy 1 d behind it. Upper teeth are skinned rigidly to the neck joint, lower teeth
-    to the jaw; their identity blendshapes are the mean of the two rings', with no expression or
-    pose correctives and no weight in the joint regressor.
-
-    Args:
-      upper_ring, lower_ring: (n,) vertex indices of the outer lip rings, corresponding pairwise
-        and ordered along the mouth (FLAME: 15 each).
-    Returns a model with 8n more vertices and 12(n-1) more faces (the teeth faces come last).
-    """
-    upper, lower = np.asarray(upper_ring), np.asarray(lower_ring)
-    if upper.shape != lower.shape or upper.ndim != 1 or len(upper) < 2:
-        raise ValueError("upper_ring and lower_ring must be 1-D index arrays of equal length >= 2")
-    v = np.asarray(model.v_template, np.float64)
-    n, base = len(upper), v.shape[0]
-    d = float(np.mean(np.linalg.norm(v[upper] - v[lower], axis=1)))
-    mid = 0.5 * (v[upper] + v[lower])
-    mid[:, 1] = mid[:, 1].mean()
-    mid[:, 2] -= 1.5 * d
-    up = np.array([0.0, 1.0, 0.0])
-    back = np.array([0.0, 0.0, -1.0])
-    upper_rows = [mid + (0.1 + 2.0) * d * up, mid + 0.1 * d * up]  # root, edge
-    lower_rows = [mid - (0.1 + 2.0) * d * up + 0.4 * d * back,
-                  mid - 0.1 * d * up + 0.4 * d * back]
-    rows = []
-    for root, edge in (upper_rows, lower_rows):
-        rows += [root, edge, edge + d * back, root + d * back]
-    teeth = np.concatenate(rows)  # (8n, 3): per jaw root, edge, edge-back, root-back
-
-    faces = []
-    for jaw in range(2):
-        for r in range(3):
-            a0 = base + (4 * jaw + r) * n
-            b0 = a0 + n
-            for c in range(n - 1):
-                faces += [(a0 + c, b0 + c, a0 + c + 1), (a0 + c + 1, b0 + c, b0 + c + 1)]
-    faces = np.asarray(faces)
-
-    def extend(x, new):
-        return jnp.concatenate([x, jnp.asarray(new, x.dtype)], axis=0)
-
-    ring_dirs = 0.5 * (np.asarray(model.shapedirs)[upper] + np.asarray(model.shapedirs)[lower])
-    weights = np.zeros((8 * n, len(model.parents)))
-    weights[:4 * n, NECK_JOINT] = 1.0
-    weights[4 * n:, JAW_JOINT] = 1.0
-    return FlameModel(
-        v_template=extend(model.v_template, teeth),
-        shapedirs=extend(model.shapedirs, np.tile(ring_dirs, (8, 1, 1))),
-        exprdirs=extend(model.exprdirs, np.zeros((8 * n,) + model.exprdirs.shape[1:])),
-        posedirs=extend(model.posedirs, np.zeros((8 * n,) + model.posedirs.shape[1:])),
-        j_regressor=jnp.concatenate(
-            [model.j_regressor, jnp.zeros((model.j_regressor.shape[0], 8 * n),
-                                          model.j_regressor.dtype)], axis=1),
-        lbs_weights=extend(model.lbs_weights, weights),
-        faces=extend(model.faces, faces),
-        parents=model.parents)

@@ -10,21 +10,22 @@ faces come from `flame_masks` (FLAME_masks.pkl) when given, else every face is s
 from __future__ import annotations
 
 import dataclasses
-import glob
-import os
 
 import numpy as np
 
-from gae_jax.model import flame_io, head
+from gae_jax.model import flame, flame_io, head
+from gae_jax.model.teeth import teeth_regions, with_teeth
 from gae_jax.scene import nersemble, synthetic
 from gae_jax.scene.types import Scene
 
 
 def load_model(flame_model: str = "", flame_masks: str = "", data: str = "", dims=None,
-               head_kind: str = "procedural"):
+               head_kind: str = "procedural", teeth: bool = True):
     """(FlameModel, (F,) face regions): the embedded head `head_kind`, or a FLAME file with as
     many shape / expression components as `dims` = (S, E) says or, without it, as the data's
-    flame_param files hold (300 / 100 without either)."""
+    flame_param files hold (300 / 100 without either). A FLAME-sized file (5023 vertices) gets
+    GaussianAvatars' teeth unless `teeth` is False (`model.teeth`: their faces are labelled
+    teeth), as GaussianAvatars always builds it: its avatars bind Gaussians to them."""
     if not flame_model:
         if flame_masks:
             raise ValueError("--flame-masks needs --flame-model (the embedded head has its "
@@ -32,12 +33,10 @@ def load_model(flame_model: str = "", flame_masks: str = "", data: str = "", dim
         model, assets = head.make_head(head_kind)
         return model, assets.face_regions
     n_shape, n_expr = 300, 100
-    params = [] if dims is not None or not data else sorted(
-        glob.glob(os.path.join(data, "flame_param", "*.npz")))
     if dims is not None:
         n_shape, n_expr = dims
-    elif params:
-        first = nersemble.load_flame_param(params[0])
+    elif data:
+        first = nersemble.first_flame_param(data)
         n_shape, n_expr = first["shape"].size, first["expr"].shape[-1]
     model = flame_io.load_flame(flame_model, n_shape=n_shape, n_expr=n_expr)
     if flame_masks:
@@ -45,6 +44,9 @@ def load_model(flame_model: str = "", flame_masks: str = "", data: str = "", dim
         regions = flame_io.face_regions_from_masks(model.faces, masks, model.num_vertices)
     else:
         regions = np.full(model.faces.shape[0], head.REGION_ID["skin"], np.int32)
+    if teeth and model.num_vertices == flame.FLAME_VERTICES:
+        model = with_teeth(model)
+        regions = teeth_regions(regions, head.REGION_ID["teeth"])
     return model, regions
 
 
@@ -55,6 +57,7 @@ class SceneConfig:
     data: str = ""
     flame_model: str = ""
     flame_masks: str = ""
+    flame_teeth: bool = True
     size: int = 128
     head: str = head.DEFAULT_KIND
 
@@ -71,6 +74,8 @@ SCENE_HELP = dict(
          "empty: the embedded synthetic scene",
     flame_model="FLAME model file (.pkl or gae_jax .npz) posing --data; empty: the embedded head",
     flame_masks="FLAME_masks.pkl naming the FLAME model's regions (lips, eyeballs, scalp)",
+    flame_teeth="append GaussianAvatars' teeth to a FLAME-sized --flame-model, as "
+                "GaussianAvatars does (its avatars bind Gaussians to them); false: plain FLAME",
     size="image size of the embedded scene (pixels; --data keeps its own; a new size builds and "
          "caches a new scene, about a minute at 128 px, and reconstructs its avatar)",
     head="the embedded head: makehuman (the MakeHuman base head with the 52 ARKit face units) "
@@ -86,5 +91,6 @@ def load_scene(source: SceneConfig = SceneConfig(), progress: bool = False) -> S
                              "is posed by the embedded head)")
         return synthetic.make_synthetic_scene(size=source.size, progress=progress,
                                               head_kind=source.head)
-    model, regions = load_model(flame_model, flame_masks, data, head_kind=source.head)
+    model, regions = load_model(flame_model, flame_masks, data, head_kind=source.head,
+                                teeth=source.flame_teeth)
     return nersemble.load_scene(data, model, regions)

@@ -1,8 +1,10 @@
-"""A scene's motions as one `.npz`: every sequence's FLAME parameters and every identity's shape.
+"""A scene's motions as one `.npz`: every sequence's FLAME parameters and every identity's shape
+(and static offset, when it has one).
 
 A run folder of `python -m gae_jax.train` carries it as `motion.npz`, so that a viewer can play
 the scene's sequences (training, held-out, cross-identity) without the scene. Arrays:
-`shape/<identity>` (S,), `sequence/<name>/<field>` (T, ...) for the `types.Sequence` fields
+`shape/<identity>` (S,), `static_offset/<identity>` (V, 3) when the identity has one,
+`sequence/<name>/<field>` (T, ...) for the `types.Sequence` fields
 expr (T, E), rotation, neck, jaw, translation (T, 3) and eyes (T, 6); `meta` is JSON of each
 sequence's identity and split, in the scene's order.
 """
@@ -21,9 +23,12 @@ FILE_NAME = "motion.npz"
 FIELDS = dict(expr=None, rotation=3, neck=3, jaw=3, eyes=6, translation=3)
 
 
-def save(path: str, sequences: dict, shapes: dict) -> None:
-    """Writes name -> `Sequence` and identity -> (S,) shape atomically."""
+def save(path: str, sequences: dict, shapes: dict, static_offsets: dict | None = None) -> None:
+    """Writes name -> `Sequence`, identity -> (S,) shape and identity -> (V, 3) static offset
+    atomically."""
     arrays = {f"shape/{k}": np.asarray(v, np.float32) for k, v in shapes.items()}
+    arrays.update({f"static_offset/{k}": np.asarray(v, np.float32)
+                   for k, v in (static_offsets or {}).items()})
     meta = []
     for name, seq in sequences.items():
         meta.append(dict(name=name, identity=seq.identity, split=seq.split))
@@ -35,10 +40,10 @@ def save(path: str, sequences: dict, shapes: dict) -> None:
     atomic_write_bytes(path, buffer.getvalue())
 
 
-def load(path: str, num_expr: int, num_shape: int) -> tuple[dict, dict]:
-    """(name -> Sequence, identity -> (S,) shape) of `save`'s file, checked against a model with
-    `num_expr` expression and `num_shape` shape components; ValueError naming the file and what
-    is wrong when it is unreadable or does not fit."""
+def load(path: str, num_expr: int, num_shape: int) -> tuple[dict, dict, dict]:
+    """(name -> Sequence, identity -> (S,) shape, identity -> (V, 3) static offset) of `save`'s
+    file, checked against a model with `num_expr` expression and `num_shape` shape components;
+    ValueError naming the file and what is wrong when it is unreadable or does not fit."""
     try:
         with np.load(path, allow_pickle=False) as f:
             data = {k: np.asarray(f[k]) for k in f.files}
@@ -75,4 +80,6 @@ def load(path: str, num_expr: int, num_shape: int) -> tuple[dict, dict]:
                 raise ValueError(f"{path}: {name}/{field} holds NaN or infinite values")
         sequences[name] = Sequence(name=name, identity=entry["identity"], split=entry["split"],
                                    **fields)
-    return sequences, shapes
+    offsets = {k[len("static_offset/"):]: v for k, v in data.items()
+               if k.startswith("static_offset/")}
+    return sequences, shapes, offsets

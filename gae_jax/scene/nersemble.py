@@ -4,11 +4,16 @@
     <subject>/images/{ti:05d}_{ci:02d}.png        (white background)
     <subject>/fg_masks/{ti:05d}_{ci:02d}.png
     <subject>/flame_param/{ti:05d}.npz            translation, rotation, neck_pose, jaw_pose (1,3);
-                                                  eyes_pose (1,6); shape (S,); expr (1,E)
+                                                  eyes_pose (1,6); shape (S,); expr (1,E);
+                                                  static_offset (1,V,3) (VHAP's default)
     <subject>/canonical_flame_param.npz           zero pose, jaw_pose [[0.3, 0, 0]], shape
 
 OpenGL axes are converted to ours (OpenCV) by flipping the Y and Z columns of camera-to-world.
-Unlike GaussianAvatars' reader, the principal point (cx, cy) is honoured.
+VHAP writes the principal point of that OpenGL camera, `cy` measured from the image's bottom
+edge: ours is h - cy (GaussianAvatars ignores cx, cy and centres it; we honour both). As in
+GaussianAvatars, the identity's shape and static offset are those of the first timestep's file
+and serve every frame. A multi-sequence ("UNION") folder's frames point into sibling sequence
+folders (`../SEQ/flame_param/...`): every path is taken relative to the folder read.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import os
 
 import numpy as np
 
+from gae_jax.model.flame import fit_static_offset
 from gae_jax.scene.types import Scene, Sequence
 from gae_jax.util.fileio import atomic_write_bytes, encode_png
 
@@ -50,8 +56,9 @@ def _write_json(path, obj):
 
 
 def _npz_bytes(**arrays) -> bytes:
+    """An uncompressed .npz of float32 arrays (VHAP writes float32)."""
     buf = _io.BytesIO()
-    np.savez(buf, **arrays)
+    np.savez(buf, **{k: np.asarray(v, np.float32) for k, v in arrays.items()})
     return buf.getvalue()
 
 
@@ -68,18 +75,21 @@ def export_scene(scene, folder: str) -> dict:
     for name in names:
         timesteps += [(name, t) for t in range(scene.sequences[name].num_frames)]
     shape = np.asarray(scene.shapes["A"], np.float32)
+    offset = scene.static_offsets.get("A")
+    offset = np.zeros((scene.model.num_vertices, 3)) if offset is None else offset
+    offset = np.asarray(offset, np.float32)[None]
     os.makedirs(os.path.join(folder, "flame_param"), exist_ok=True)
     for ti, (name, t) in enumerate(timesteps):
         seq = scene.sequences[name]
         atomic_write_bytes(os.path.join(folder, "flame_param", f"{ti:05d}.npz"), _npz_bytes(
             translation=seq.translation[t][None], rotation=seq.rotation[t][None],
             neck_pose=seq.neck[t][None], jaw_pose=seq.jaw[t][None], eyes_pose=seq.eyes[t][None],
-            shape=shape, expr=seq.expr[t][None]))
+            shape=shape, expr=seq.expr[t][None], static_offset=offset))
     z3 = np.zeros((1, 3))
     atomic_write_bytes(os.path.join(folder, "canonical_flame_param.npz"), _npz_bytes(
         translation=z3, rotation=z3, neck_pose=z3, jaw_pose=np.array([[CANONICAL_JAW, 0, 0]]),
         eyes_pose=np.zeros((1, 6)), shape=shape,
-        expr=np.zeros((1, scene.sequences[names[0]].expr.shape[1]))))
+        expr=np.zeros((1, scene.sequences[names[0]].expr.shape[1])), static_offset=offset))
 
     splits = {"train": ([n for n in names if scene.sequences[n].split == "train"],
                         scene.train_cameras),
@@ -95,6 +105,7 @@ def export_scene(scene, folder: str) -> dict:
                 continue
             for ci in cams:
                 fx, fy, cx, cy = (float(v) for v in scene.intrinsics[ci])
+                cy = scene.height - cy  # VHAP's cy: from the bottom edge
                 c2w = np.linalg.inv(scene.w2c[ci].astype(np.float64)) @ OPENGL_TO_OPENCV
                 stem = f"{ti:05d}_{ci:02d}"
                 image_rel, mask_rel = f"images/{stem}.png", f"fg_masks/{stem}.png"
@@ -141,7 +152,8 @@ def load_split(folder: str, split: str) -> list:
         c2w = np.asarray(get("transform_matrix"), np.float64)
         if c2w.shape != (4, 4) or not np.all(np.isfinite(c2w)):
             raise ValueError(f"{path}: frame {i} 'transform_matrix' must be a finite 4x4 matrix")
-        intr = np.asarray([get("fl_x"), get("fl_y"), get("cx"), get("cy")], np.float64)
+        intr = np.asarray([get("fl_x"), get("fl_y"), get("cx"), get("h") - get("cy")],
+                          np.float64)
         if not np.all(np.isfinite(intr)) or intr[0] <= 0 or intr[1] <= 0:
             raise ValueError(f"{path}: frame {i} has invalid intrinsics {intr.tolist()}")
         mask = get("fg_mask_path") if "fg_mask_path" in fr or "fg_mask_path" in meta else None
@@ -177,6 +189,15 @@ def load_flame_param(path: str) -> dict:
         if not np.all(np.isfinite(value)):
             raise ValueError(f"{path}: '{key}' contains NaN or infinite values")
     return arr
+
+
+def first_flame_param(folder: str) -> dict:
+    """The flame_param of a folder's first training frame (what sizes its FLAME model), read
+    from where transforms_train.json points (a UNION folder holds none of its own)."""
+    frames = load_split(folder, "train")
+    if not frames:
+        raise ValueError(f"{os.path.join(folder, 'transforms_train.json')}: no frames")
+    return load_flame_param(min(frames, key=lambda fr: fr.timestep).flame_param_path)
 
 
 def read_image(path: str) -> np.ndarray:
@@ -226,13 +247,21 @@ def load_scene(folder: str, model, face_regions) -> Scene:
     param_paths = {fr.timestep: fr.flame_param_path for frames in splits.values()
                    for fr in frames}
     params = {t: load_flame_param(param_paths[t]) for t in train_steps + test_steps}
-    shape = params[train_steps[0]]["shape"].reshape(-1)
+    first = min(params)
+    shape = params[first]["shape"].reshape(-1)
+    static_offsets = {}
+    if "static_offset" in params[first]:
+        try:
+            static_offsets["A"] = fit_static_offset(params[first]["static_offset"],
+                                                    model.num_vertices)
+        except ValueError as e:
+            raise ValueError(f"{param_paths[first]}: {e}") from None
     for t, p in params.items():
         if p["expr"].shape[1] != model.num_expr:
             raise ValueError(f"{param_paths[t]}: 'expr' has {p['expr'].shape[1]} coefficients, "
                              f"the FLAME model {model.num_expr}")
     if shape.shape[0] != model.num_shape:
-        raise ValueError(f"{param_paths[train_steps[0]]}: 'shape' has {shape.shape[0]} "
+        raise ValueError(f"{param_paths[first]}: 'shape' has {shape.shape[0]} "
                          f"coefficients, the FLAME model {model.num_shape}")
 
     def sequence(name, split, steps):
@@ -276,4 +305,5 @@ def load_scene(folder: str, model, face_regions) -> Scene:
                  train_cameras=tuple(column[c] for c in train_cams),
                  held_out_cameras=tuple(column[c] for c in held_out), shapes={"A": shape},
                  vertex_colors={"A": grey}, sequences=sequences, images=images, regions=regions,
-                 background=np.ones(3, np.float32), kind="capture")
+                 background=np.ones(3, np.float32), kind="capture",
+                 static_offsets=static_offsets)

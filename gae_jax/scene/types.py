@@ -43,14 +43,16 @@ class Sequence:
     def num_frames(self) -> int:
         return self.expr.shape[0]
 
-    def params(self, shape: np.ndarray, frame: int) -> flame.FlameParams:
-        """FlameParams of one frame with the given identity shape coefficients."""
+    def params(self, shape: np.ndarray, frame: int, static_offset=None) -> flame.FlameParams:
+        """FlameParams of one frame with the given identity shape coefficients and optional
+        (V, 3) static offset."""
         f = jnp.float32
         return flame.FlameParams(
             shape=jnp.asarray(shape, f), expr=jnp.asarray(self.expr[frame], f),
             rotation=jnp.asarray(self.rotation[frame], f), neck=jnp.asarray(self.neck[frame], f),
             jaw=jnp.asarray(self.jaw[frame], f), eyes=jnp.asarray(self.eyes[frame], f),
-            translation=jnp.asarray(self.translation[frame], f))
+            translation=jnp.asarray(self.translation[frame], f),
+            static_offset=None if static_offset is None else jnp.asarray(static_offset, f))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,6 +77,9 @@ class Scene:
       head: the built-in head that poses it (`head.HEAD_KINDS`), "" for a FLAME file.
       supersample: rays per pixel per axis of a synthetic scene's ground truth (its ideal edit
         is ray-cast the same way).
+      static_offsets: identity name -> (V, 3) per-vertex offset of the tracked identity (VHAP's
+        static_offset, added to the shaped template before skinning, as GaussianAvatars does);
+        absent: none.
     """
 
     model: flame.FlameModel
@@ -95,6 +100,7 @@ class Scene:
     albedo: Optional[dict] = None
     supersample: int = 1
     head: str = ""
+    static_offsets: dict = dataclasses.field(default_factory=dict)
 
     @property
     def num_cameras(self) -> int:
@@ -119,11 +125,17 @@ def training_frames(scene: Scene) -> list:
             for t in range(scene.sequences[n].num_frames)]
 
 
+def frame_params(scene: Scene, name: str, frame: int, identity: str = "A") -> flame.FlameParams:
+    """FlameParams of one frame of a sequence with an identity's shape and static offset."""
+    return scene.sequences[name].params(scene.shapes[identity], frame,
+                                        scene.static_offsets.get(identity))
+
+
 def posed_vertices(scene: Scene, frames, identity: str = "A") -> np.ndarray:
     """(T, V, 3) mesh vertices of an identity's shape under the given (sequence, frame) motions."""
     lbs = jax.jit(flame.lbs)
-    return np.stack([np.asarray(lbs(scene.model, scene.sequences[n].params(
-        scene.shapes[identity], t))) for n, t in frames])
+    return np.stack([np.asarray(lbs(scene.model, frame_params(scene, n, t, identity)))
+                     for n, t in frames])
 
 
 def training_images(scene: Scene) -> np.ndarray:
@@ -181,7 +193,7 @@ def _strided(rays, height: int, width: int, stride: int):
 
 def stacked_params(scene: Scene, names, identity: str = "A") -> flame.FlameParams:
     """FlameParams with a leading frame axis over all frames of the named sequences."""
-    frames = [scene.sequences[n].params(scene.shapes[identity], t) for n in names
+    frames = [frame_params(scene, n, t, identity) for n in names
               for t in range(scene.sequences[n].num_frames)]
     return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
 
@@ -197,7 +209,7 @@ def interpolated_vertices(scene: Scene, name: str, per_frame: int,
     for x in times:
         lo = int(np.floor(x))
         hi, w = min(lo + 1, seq.num_frames - 1), x - lo
-        a, b = seq.params(scene.shapes[identity], lo), seq.params(scene.shapes[identity], hi)
+        a, b = frame_params(scene, name, lo, identity), frame_params(scene, name, hi, identity)
         mixed = jax.tree_util.tree_map(lambda p, q: (1 - w) * p + w * q, a, b)
         out.append(np.asarray(lbs(scene.model, mixed)))
     return np.stack(out)

@@ -77,12 +77,15 @@ def values_of_frame(sequence, frame: int) -> dict:
     return values
 
 
-def params_of_values(values: dict, shape, num_expr: int) -> FlameParams:
-    """FlameParams of slider values (missing keys are 0) with identity `shape` (S,)."""
+def params_of_values(values: dict, shape, num_expr: int, static_offset=None) -> FlameParams:
+    """FlameParams of slider values (missing keys are 0) with identity `shape` (S,) and its
+    optional (V, 3) `static_offset`."""
     def vector(field, width):
         return jnp.asarray([values.get(f"{field}/{i}", 0.0) for i in range(width)], jnp.float32)
 
     return FlameParams(shape=jnp.asarray(shape, jnp.float32), expr=vector("expr", num_expr),
                        rotation=vector("rotation", 3), neck=vector("neck", 3),
                        jaw=vector("jaw", 3), eyes=vector("eyes", 6),
-                       translation=vector("translation", 3))
+                       translation=vector("translation", 3),
+                       static_offset=None if static_offset is None else jnp.asarray(
+                           static_offset, jnp.float32))

@@ -17,7 +17,7 @@ import numpy as np
 
 from gae_jax.edit.config import EditConfig, StepConfig
 from gae_jax.evaluation import truth
-from gae_jax.model import avatar_io, head
+from gae_jax.model import avatar_io, flame, head
 from gae_jax.model.avatar import Avatar
 from gae_jax.model.flame import FlameModel
 from gae_jax.render import wabe
@@ -38,7 +38,8 @@ class Viewable:
       title: what the page's header says (folder, prompt).
       model: the FLAME model (or built-in head) that poses the mesh; expr_names: (E,) labels.
       avatars: label -> Avatar, the edited one first ("edited", "original"; or "avatar").
-      shapes: identity -> (S,) shape coefficients ("A": the avatar's own).
+      shapes: identity -> (S,) shape coefficients ("A": the avatar's own); static_offsets:
+        identity -> (V, 3) static offset (GaussianAvatars' flame_param), where one exists.
       sequences: name -> `types.Sequence` the player offers.
       intrinsics: (C, 4); w2c: (C, 4, 4); width, height: the camera presets' image size.
       background: (3,) colour; blend: the blending the avatar was trained with.
@@ -56,6 +57,7 @@ class Viewable:
     height: int
     background: np.ndarray
     blend: wabe.Blend
+    static_offsets: dict = dataclasses.field(default_factory=dict)
 
 
 def _avatar_file(folder: str) -> str:
@@ -80,15 +82,24 @@ def _motion_of(shape, frames, folder: str, model: FlameModel) -> tuple[np.ndarra
     return shape, seq
 
 
+def _static_offset(frames, model: FlameModel):
+    """The (V, 3) static offset of an avatar folder's flame_param.npz (`frames`), or None."""
+    if frames.static_offset is None:
+        return None
+    return flame.fit_static_offset(np.asarray(frames.static_offset)[0], model.num_vertices)
+
+
 def _expr_names(model: FlameModel, assets) -> tuple:
     if assets is not None and len(assets.expr_names) == model.num_expr:
         return tuple(assets.expr_names)
     return tuple(f"expression {i}" for i in range(model.num_expr))
 
 
-def _model_for(folder: str, head_kind: str, flame_model: str, flame_masks: str):
+def _model_for(folder: str, head_kind: str, flame_model: str, flame_masks: str,
+               teeth: bool = True):
     """(model, face regions, built-in head assets or None, shape, frames): the model an avatar
-    folder is bound to, a FLAME file cut to as many components as its flame_param.npz holds."""
+    folder is bound to, a FLAME file cut to as many components as its flame_param.npz holds
+    (with GaussianAvatars' teeth unless `teeth` is False)."""
     shape, frames = avatar_io.load_flame_params(os.path.join(folder, "flame_param.npz"))
     if not flame_model:
         if flame_masks:
@@ -97,7 +108,7 @@ def _model_for(folder: str, head_kind: str, flame_model: str, flame_masks: str):
         model, assets = head.make_head(head_kind)
         return model, assets.face_regions, assets, shape, frames
     model, regions = load_model(flame_model, flame_masks,
-                                dims=(shape.size, int(frames.expr.shape[-1])))
+                                dims=(shape.size, int(frames.expr.shape[-1])), teeth=teeth)
     return model, regions, None, shape, frames
 
 
@@ -123,7 +134,8 @@ def from_run(run_dir: str) -> Viewable:
     except (json.JSONDecodeError, KeyError, TypeError) as e:
         raise ValueError(f"{metrics_path}: not a metrics file of this version ({e})") from None
     model, regions, assets, shape, frames = _model_for(
-        edited_dir, scene_config.head, scene_config.flame_model, scene_config.flame_masks)
+        edited_dir, scene_config.head, scene_config.flame_model, scene_config.flame_masks,
+        scene_config.flame_teeth)
     avatars = {}
     for label in ("edited", "original"):
         path = _avatar_file(os.path.join(run_dir, f"{label}_avatar"))
@@ -131,19 +143,22 @@ def from_run(run_dir: str) -> Viewable:
     if avatars["edited"].num != avatars["original"].num:
         raise ValueError(f"{run_dir}: the edited avatar has {avatars['edited'].num} Gaussians, "
                          f"the original {avatars['original'].num}")
+    offset = _static_offset(frames, model)
     shape, own = _motion_of(shape, frames, edited_dir, model)
     motion_path = os.path.join(run_dir, motion_io.FILE_NAME)
     if os.path.isfile(motion_path):
-        sequences, shapes = motion_io.load(motion_path, model.num_expr, model.num_shape)
+        sequences, shapes, offsets = motion_io.load(motion_path, model.num_expr,
+                                                    model.num_shape)
     else:
         sequences, shapes = {AVATAR_MOTION: own}, {"A": shape}
+        offsets = {} if offset is None else {"A": offset}
     evalset = truth.load(os.path.join(run_dir, truth.FILE_NAME))
     return Viewable(
         title=f'{os.path.basename(os.path.normpath(run_dir))}: "{config.prompt}"', model=model,
         expr_names=_expr_names(model, assets), avatars=avatars, shapes=shapes,
         sequences=sequences, intrinsics=evalset.intrinsics, w2c=evalset.w2c,
         width=evalset.width, height=evalset.height, background=evalset.background,
-        blend=StepConfig.of(config).blend)
+        blend=StepConfig.of(config).blend, static_offsets=offsets)
 
 
 def from_avatar(folder: str, head_kind: str = "procedural", flame_model: str = "",
@@ -156,6 +171,7 @@ def from_avatar(folder: str, head_kind: str = "procedural", flame_model: str = "
     ply = _avatar_file(folder)
     model, regions, assets, shape, frames = _model_for(folder, head_kind, flame_model,
                                                        flame_masks)
+    offset = _static_offset(frames, model)
     shape, own = _motion_of(shape, frames, folder, model)
     sequences, shapes = {AVATAR_MOTION: own}, {"A": shape}
     if assets is not None:
@@ -168,4 +184,5 @@ def from_avatar(folder: str, head_kind: str = "procedural", flame_model: str = "
         expr_names=_expr_names(model, assets),
         avatars={"avatar": avatar_io.load_bound_avatar(ply, regions)}, shapes=shapes,
         sequences=sequences, intrinsics=intrinsics, w2c=w2c, width=RIG_SIZE, height=RIG_SIZE,
-        background=np.ones(3), blend=wabe.named(blend))
+        background=np.ones(3), blend=wabe.named(blend),
+        static_offsets={} if offset is None else {"A": offset})
