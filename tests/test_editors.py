@@ -214,15 +214,15 @@ def test_fitted_shading_recolours_every_region_as_the_ray_cast_ideal(size, dista
 
 
 def test_outline_jitter_scales_with_the_region_and_keeps_thin_regions_edited():
-    """At noise 1 the outline of a wide region grows and shifts by up to 4 px each, a 3-px-wide
-    one's by 3 / 16 of that; at the CLI's noise (0.3) the thin one is still edited over most of
+    """At noise 1 the outline between two wide regions grows and shifts by up to 4 px each, a
+    3-px-wide region's by 3 / 16 of that; at the CLI's noise (0.3) the thin one is still edited over most of
     its pixels in most calls."""
     import cv2
 
-    regions = np.full((48, 48), head.REGION_ID["skin"])
-    regions[6:42, 4:40] = LIPS  # 36 px wide
-    regions[20:23, 42:47] = head.REGION_ID["brows"]  # 3 px wide
-    image = np.full((48, 48, 3), 0.6, np.float32)
+    regions = np.full((80, 80), head.REGION_ID["skin"])
+    regions[20:56, 20:56] = LIPS  # 36 px wide, in skin at least 20 px wide
+    regions[36:39, 66:71] = head.REGION_ID["brows"]  # 3 px wide
+    image = np.full((80, 80, 3), 0.6, np.float32)
     editor, default = make_editor("semantic", noise=1.0), make_editor("semantic", noise=0.3)
     cases = {LIPS: ("turn the lips blue", 4.0), head.REGION_ID["brows"]:
              ("make the eyebrows black", 4.0 * 3 / semantic.FULL_SIZE_THICKNESS)}
@@ -243,6 +243,39 @@ def test_outline_jitter_scales_with_the_region_and_keeps_thin_regions_edited():
             assert max(furthest) >= 2  # the outline does move
         else:
             assert np.mean(np.asarray(kept) > 0.9) > 0.75, kept
+
+
+def test_an_outline_moves_as_the_thinner_region_it_separates_and_the_silhouette_not_at_all():
+    """A skin edit's outline moves by the skin's reach where it meets wide hair, by a 3-px lip
+    strip's where it meets the lips (so the strip keeps most of its pixels), and never where it
+    meets the background (the skin's last pixels before it are always edited)."""
+    skin, hair = head.REGION_ID["skin"], head.REGION_ID["hair"]
+    regions = np.full((64, 64), skin)
+    regions[:, :4] = -1  # background
+    regions[:, 44:] = hair  # 20 px wide
+    regions[30:33, 14:34] = LIPS  # 3 px wide
+    mask = regions == skin
+    size = min(1.0, semantic.thickness(mask) / semantic.FULL_SIZE_THICKNESS)
+    factor = semantic.border_size(regions, mask, size)
+    assert size == 1.0
+    assert factor[10, 4] == 0.0  # next to the background
+    assert factor[10, 43] == pytest.approx(1.0)  # next to the hair
+    lips = semantic.thickness(regions == LIPS) / semantic.FULL_SIZE_THICKNESS
+    assert lips < 0.3 and factor[29, 20] == pytest.approx(lips)
+    image = np.full((64, 64, 3), 0.6, np.float32)
+    lips_kept, silhouette = [], []
+    for k in range(24):
+        for noise, store in ((0.3, lips_kept), (1.0, silhouette)):  # the CLI's noise; the most
+            out = make_editor("semantic", noise=noise).edit(
+                image, image, "make the skin blue", jax.random.PRNGKey(k), dict(regions=regions))
+            tone = out[:, 0] / image[:, 0]  # the global tone change, in the background
+            change = np.abs(out - image * tone[:, None]).max(-1)
+            changed = change > 0.5 * np.median(change[:, 44 - 8:44 - 4])  # over half the skin's
+            store.append(1 - changed[regions == LIPS].mean() if store is lips_kept
+                         else changed[:, 4].mean())
+    assert np.mean(np.asarray(lips_kept) > 0.6) > 0.9, lips_kept
+    # a partial edit (probability 0.25 at noise 1) may cut the silhouette off; otherwise whole
+    assert np.mean(np.asarray(silhouette) == 1.0) > 0.6, silhouette
 
 
 def test_stripes_follow_head_space_height():

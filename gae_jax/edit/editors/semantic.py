@@ -33,10 +33,12 @@ is never corrected; see the README's ablation and stability findings.
 
 `noise` in [0, 1] imitates a diffusion editor's inconsistency, all drawn from the key: per-call
 colour jitter, the region's outline grown or shrunk and shifted by up to `4 noise` pixels scaled
-by the region's size (`min(1, thickness / 16 px)`, the thickness being the widest inscribed
-disk's diameter: a 3-px iris moves by a fraction of a pixel, the skin by up to 1.2 px at the
-default noise), an occasional partial edit (a random half of the region, probability 0.25
-noise), and a global tone change.
+by the size of the thinner of the two regions it separates (`min(1, thickness / 16 px)`, the
+thickness being the widest inscribed disk's diameter: a 3-px iris's outline moves by a fraction
+of a pixel, the skin's by up to 1.2 px at the default noise where it meets the hair, as little
+as the lips' where it meets them, not at all where it meets the background; `border_size`),
+an occasional partial edit (a random half of the region, probability 0.25 noise), and a global
+tone change.
 
 `bleed` (pixels at full size, scaled like the outline's jitter, default 0) imitates how a
 diffusion edit spills over a region's silhouette: the edit's colour fades out over `bleed` px
@@ -126,13 +128,13 @@ class SemanticEditor:
         mask = (regions == region_id) & pattern
         keys = jax.random.split(key, 7)
         colour = np.asarray(instruction.colour, np.float32)
-        weight, shift = mask.astype(np.float32), (0.0, 0.0)
+        weight = mask.astype(np.float32)
         size = min(1.0, thickness(mask) / FULL_SIZE_THICKNESS)
         if self.noise > 0:
             colour = colour + 0.12 * self.noise * np.asarray(
                 jax.random.normal(keys[0], (3,)), np.float32)
-            weight, shift = _jitter(mask, OUTLINE_JITTER * self.noise * size, keys[1:6],
-                                    self.noise)
+            reach = OUTLINE_JITTER * self.noise * border_size(regions, mask, size)
+            weight = _jitter(mask, reach, keys[1:6], self.noise)
         colour = np.clip(colour, 0, 1)
         shade, light, uniform = self.shading(source, regions, context.get("normals"),
                                              instruction.region)
@@ -223,6 +225,36 @@ def thickness(mask: np.ndarray) -> float:
     return 2.0 * float(inside.max())
 
 
+def border_size(regions: np.ndarray, mask: np.ndarray, size: float) -> np.ndarray:
+    """(H, W) size factor in [0, `size`] of the outline near each pixel: where the (H, W) bool
+    `mask` (of size factor `size`) meets another region, the thinner of the two decides how far
+    their shared outline moves (a skin edit barely moves the lips' outline: a 3-px region's
+    edge is as uncertain as the region is wide); where it meets the background it does not
+    move (the silhouette is the image's clearest edge; `regions` -1), and where it meets
+    unknown foreground (-2) or the region's own unmasked pixels (between stripes) `size`
+    decides. Each pixel takes the nearest unmasked pixel's label."""
+    import cv2
+
+    outside = ~mask
+    labels = np.unique(regions[outside])
+    if labels.size == 0:
+        return np.full(mask.shape, size, np.float32)
+    own = regions[mask][0] if mask.any() else None
+    distances, factors = [], []
+    for label in labels:
+        where = outside & (regions == label)
+        distances.append(cv2.distanceTransform((~where).astype(np.uint8), cv2.DIST_L2,
+                                               cv2.DIST_MASK_PRECISE))
+        if label == -1:
+            factors.append(0.0)
+        elif label == -2 or label == own:
+            factors.append(size)
+        else:
+            factors.append(min(size, thickness(regions == label) / FULL_SIZE_THICKNESS))
+    nearest = np.argmin(np.stack(distances), 0)
+    return np.asarray(factors, np.float32)[nearest]
+
+
 def _interior(regions: np.ndarray) -> np.ndarray:
     """(H, W) bool: labelled pixels whose 3x3 neighbourhood has their label only (no mixed
     colours of two regions or of the background)."""
@@ -243,18 +275,6 @@ def _signed_distance(mask: np.ndarray) -> np.ndarray:
     inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     return np.where(mask, inside - 0.5, 0.5 - outside).astype(np.float32)
-
-
-def _shifted(image: np.ndarray, shift: tuple) -> np.ndarray:
-    """(H, W) float image moved by (dy, dx) px with linear interpolation (edges repeated)."""
-    import cv2
-
-    if shift == (0.0, 0.0):
-        return np.asarray(image, np.float32)
-    dy, dx = shift
-    return cv2.warpAffine(np.asarray(image, np.float32), np.float32([[1, 0, dx], [0, 1, dy]]),
-                          image.shape[::-1], flags=cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_REPLICATE)
 
 
 def _matte(image: np.ndarray, inside: np.ndarray, old: np.ndarray) -> np.ndarray:
@@ -296,22 +316,27 @@ def _outline_band(mask: np.ndarray) -> np.ndarray:
     return cv2.dilate(m, kernel).astype(bool) & ~cv2.erode(m, kernel).astype(bool)
 
 
-def _jitter(mask: np.ndarray, reach: float, keys, noise: float) -> tuple:
-    """((H, W) float weight in [0, 1], (dy, dx) shift): `mask` grown (or shrunk) and shifted
-    by amounts drawn uniformly in [-reach, reach] px (sub-pixel: the signed distance is shifted
-    with linear interpolation and clipped to a one-pixel ramp), then with probability
-    0.25 noise cut to a random half."""
-    weight, shift = mask.astype(np.float32), (0.0, 0.0)
-    if reach > 0 and mask.any():
-        grow = float(jax.random.uniform(keys[0], (), minval=-reach, maxval=reach))
-        dy, dx = (float(v) for v in jax.random.uniform(keys[1], (2,), minval=-reach,
-                                                         maxval=reach))
-        shift = (dy, dx)
-        weight = np.clip(_shifted(_signed_distance(mask), shift) + grow + 0.5, 0.0, 1.0)
+def _jitter(mask: np.ndarray, reach: np.ndarray, keys, noise: float) -> np.ndarray:
+    """(H, W) float weight in [0, 1]: `mask` grown (or shrunk) and shifted by a grow and a shift
+    drawn uniformly in [-1, 1], each pixel's outline moving by them times its (H, W) `reach` in
+    px (sub-pixel: the signed distance is sampled with linear interpolation and clipped to a
+    one-pixel ramp), then with probability 0.25 noise cut to a random half."""
+    import cv2
+
+    weight = mask.astype(np.float32)
+    reach = np.broadcast_to(np.asarray(reach, np.float32), mask.shape)
+    if reach.max() > 0 and mask.any():
+        grow = float(jax.random.uniform(keys[0], (), minval=-1.0, maxval=1.0))
+        dy, dx = (float(v) for v in jax.random.uniform(keys[1], (2,), minval=-1.0,
+                                                         maxval=1.0))
+        yy, xx = np.mgrid[:mask.shape[0], :mask.shape[1]].astype(np.float32)
+        moved = cv2.remap(_signed_distance(mask), xx - dx * reach, yy - dy * reach,
+                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        weight = np.clip(moved + grow * reach + 0.5, 0.0, 1.0)
     if float(jax.random.uniform(keys[2])) < 0.25 * noise and mask.any():
         ys, xs = np.nonzero(mask)
         angle = float(jax.random.uniform(keys[3], (), maxval=2 * np.pi))
         yy, xx = np.mgrid[:mask.shape[0], :mask.shape[1]]
         side = (xx - xs.mean()) * np.cos(angle) + (yy - ys.mean()) * np.sin(angle) > 0
         weight = weight * side
-    return weight, shift
+    return weight
