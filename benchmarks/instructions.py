@@ -365,6 +365,7 @@ def main(argv=None) -> int:
     text, misses = table(bench.results, everything, args.seeds)
     command = "python benchmarks/instructions.py" + (
         f" --size {args.size}" if args.size != 128 else "") + (
+        f" --seeds {' '.join(map(str, args.seeds))}" if args.seeds != [0, 1, 2] else "") + (
         " --extra" if args.extra else "") + (
         f" --out {args.out}" if args.out != p.get_default("out") else "")
     report = [f"# The instruction suite ({args.size} px MakeHuman head, {args.iterations} "
