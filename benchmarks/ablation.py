@@ -12,12 +12,12 @@ Rows (presets of `edit.config.PRESETS`, all at the same iteration count so time 
   previous   the default before region-aware editing (no region, editor keeps the render, WABE on
              the gradient, L1 + SSIM, colour rate 1e-2, Adam eps 1e-4)
   no_region  the default without its edit region (every Gaussian may move)
-  wabe_grad  ours with WABE on the gradient (the default until 2026-12-02)
-  ssim       ours with the paper's L1 + SSIM (the default until 2026-12-02) instead of L1
+  wabe_grad  ours with WABE on the gradient (the previous default)
+  ssim       ours with the paper's L1 + SSIM (the previous default) instead of L1
   no_adv     ours without the adversarial loss
   paper      ours as the paper writes it: WABE in the forward pass, one lr 1e-2 for everything
   code       ours as the released code does it: gradient mask (front Gaussians, no mouth), pairs
-  oracle     the default fed the ray-cast ideal edit of every sampled view (benchmarks/oracle.py):
+  oracle     the default fed the ray-cast ideal edit of every sampled view (gae_jax/run/oracle.py):
              the ceiling of render-edit-aggregate with perfect 2D edits (semantic edits only)
   fast       ours (the default): the prompt's region, composited targets, standard blending, L1
 Instructions: "turn the lips blue" (lips occlude the teeth), "give her red eyes" (eyelids occlude
@@ -35,17 +35,13 @@ import argparse
 import os
 import sys
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from editbench import Bench, default_scene_and_avatar, fmt, mean_over_protocols  # noqa: E402
-from editbench import write_report  # noqa: E402
-from editbench import score_of as score  # noqa: E402
-from oracle import OracleEditor  # noqa: E402
-
-from gae_jax.edit.config import preset  # noqa: E402
-from gae_jax.evaluation import protocols  # noqa: E402
-from gae_jax.model import head  # noqa: E402
-from gae_jax.scene.types import training_frames  # noqa: E402
+from gae_jax.edit.config import preset
+from gae_jax.evaluation import protocols
+from gae_jax.model import head
+from gae_jax.run.bench import (Bench, default_scene_and_avatar, fmt, mean_over_protocols,
+                               score_of as score, write_report)
+from gae_jax.run.oracle import OracleEditor
+from gae_jax.scene.types import training_frames
 
 ROWS = ("in2n", "previous", "no_region", "wabe_grad", "ssim", "no_adv", "paper", "code", "oracle",
         "fast")
@@ -133,7 +129,6 @@ def summary(results: dict, edits: list) -> str:
                           for r in ("edited", guard, "whole")]
         lines.append(f"| {LABELS.get(row, row)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
-
 
 
 def main(argv=None) -> int:

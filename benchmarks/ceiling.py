@@ -25,17 +25,12 @@ import cv2
 import jax
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from editbench import Bench, default_scene_and_avatar, mean_over_protocols  # noqa: E402
-from editbench import write_report  # noqa: E402
-from oracle import OracleEditor  # noqa: E402
-
-from gae_jax.edit.config import preset  # noqa: E402
-from gae_jax.evaluation import metrics, protocols, score, truth  # noqa: E402
-from gae_jax.model import avatar as av  # noqa: E402
-from gae_jax.model import head  # noqa: E402
-from gae_jax.scene import rig as rigs  # noqa: E402
+from gae_jax.edit.config import preset
+from gae_jax.evaluation import metrics, protocols, score, truth
+from gae_jax.model import avatar as av, head
+from gae_jax.run.bench import Bench, default_scene_and_avatar, mean_over_protocols, write_report
+from gae_jax.run.oracle import OracleEditor
+from gae_jax.scene import rig as rigs
 
 PROMPT = "turn the lips blue"
 VARIANTS = {"default": {}, "iterations_300": dict(iterations=300), "batch_4": dict(batch=4),
@@ -98,7 +93,7 @@ def main(argv=None) -> int:
         extra = {}
 
         def measure(edited, start=start, config=config, extra=extra):
-            session, _ = bench.session(config, scene, start)
+            session, _ = bench.setup(config, scene, start)
             extra.update(rim_and_interior(scene, edited, start, session.step_config.blend,
                                           session.rig.tile_capacity))
 

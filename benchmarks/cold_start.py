@@ -26,9 +26,7 @@ import sys
 import tempfile
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from gae_jax.util.fileio import atomic_write_bytes  # noqa: E402
+from gae_jax.util.fileio import atomic_write_bytes
 
 COMPILED = re.compile(r"Finished XLA compilation of (.+?) in ([0-9.e+-]+) sec")
 

@@ -32,22 +32,17 @@ import time
 import jax
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from editbench import fmt, write_report  # noqa: E402
-from oracle import recoloured  # noqa: E402
-
-from gae_jax.edit.config import preset  # noqa: E402
-from gae_jax.evaluation import protocols, score, truth  # noqa: E402
-from gae_jax.fit.config import ReconstructConfig  # noqa: E402
-from gae_jax.fit.fit import fit, initial_avatar  # noqa: E402
-from gae_jax.model import avatar as av  # noqa: E402
-from gae_jax.model import head  # noqa: E402
-from gae_jax.scene import rig as rigs  # noqa: E402
-from gae_jax.scene import synthetic  # noqa: E402
-from gae_jax.scene.types import posed_vertices, training_frames  # noqa: E402
-from gae_jax.train import original_avatar  # noqa: E402
-from gae_jax.util.fileio import atomic_write_bytes  # noqa: E402
+from gae_jax.edit.config import preset
+from gae_jax.evaluation import protocols, score, truth
+from gae_jax.fit.config import ReconstructConfig
+from gae_jax.fit.fit import fit, initial_avatar
+from gae_jax.model import avatar as av, regions
+from gae_jax.run.bench import fmt, write_report
+from gae_jax.run.oracle import recoloured
+from gae_jax.run.original import original_avatar
+from gae_jax.scene import rig as rigs, synthetic
+from gae_jax.scene.types import posed_vertices, training_frames
+from gae_jax.util.fileio import atomic_write_bytes
 
 PROMPT = "turn the lips blue"
 REGION = "lips"
@@ -55,22 +50,11 @@ VARIANTS = ("it600", "it1200", "per_face_2", "lips_x4", "continued_300", "rim_sp
 
 
 def region_faces(scene, name: str) -> np.ndarray:
-    return np.asarray(scene.face_regions) == head.REGION_ID[name]
+    return regions.region_faces(scene.face_regions, name)
 
 
 def rim_faces(scene, name: str) -> np.ndarray:
-    """(F,) bool: faces of region `name` with an edge no other face of the region shares (the
-    region's outline; the procedural lips are a mesh piece of their own, sharing no vertex)."""
-    faces = np.asarray(scene.model.faces)
-    inside = np.flatnonzero(region_faces(scene, name))
-    edges = np.sort(np.stack([faces[inside][:, [0, 1]], faces[inside][:, [1, 2]],
-                              faces[inside][:, [2, 0]]], axis=1), axis=-1)  # (n, 3, 2)
-    _, index, counts = np.unique(edges.reshape(-1, 2), axis=0, return_inverse=True,
-                                 return_counts=True)
-    open_edge = (counts[index.reshape(-1)] == 1).reshape(-1, 3)
-    rim = np.zeros(faces.shape[0], bool)
-    rim[inside[open_edge.any(axis=1)]] = True
-    return rim
+    return regions.rim_faces(scene.model.faces, scene.face_regions, name)
 
 
 def denser_in_region(scene, config: ReconstructConfig, name: str, per_face: int, key):

@@ -23,16 +23,13 @@ import sys
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from editbench import Bench, mean_over_protocols, score_of  # noqa: E402
-
-from gae_jax.edit.config import preset  # noqa: E402
-from gae_jax.evaluation.score import psnr_against_capture  # noqa: E402
-from gae_jax.render import wabe  # noqa: E402
-from gae_jax.scene import synthetic  # noqa: E402
-from gae_jax.scene.types import training_frames  # noqa: E402
-from gae_jax.train import original_avatar  # noqa: E402
+from gae_jax.edit.config import preset
+from gae_jax.evaluation.score import psnr_against_capture
+from gae_jax.render import wabe
+from gae_jax.run.bench import Bench, mean_over_protocols, score_of
+from gae_jax.run.original import original_avatar
+from gae_jax.scene import synthetic
+from gae_jax.scene.types import training_frames
 
 EDITS = {
     "default": {},

@@ -1,4 +1,4 @@
-"""What one edit iteration costs at 128 / 256 / 512 px (issue 17: <= 1 s at 512).
+"""What one edit iteration costs at 128 / 256 / 512 px (target: <= 1 s at 512).
 
     python benchmarks/edit_resolution.py [--sizes 128 256 512] [--iterations 8]
                                          [--head makehuman|procedural] [--kernel auto|jax]
@@ -29,10 +29,7 @@ import dataclasses
 import json
 import os
 import statistics
-import sys
 import time
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 
 def variant_overrides(name: str) -> dict:
@@ -118,7 +115,7 @@ def main():
 
     # Benchmark-only: every render of this process takes the chosen path.
     splat.render.__kwdefaults__["kernel"] = args.kernel
-    from editbench import default_scene_and_avatar
+    from gae_jax.run.bench import default_scene_and_avatar
     from gae_jax.util.fileio import atomic_write_bytes
 
     scene, original = default_scene_and_avatar(args.head)

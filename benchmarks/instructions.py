@@ -32,20 +32,16 @@ import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from editbench import Bench, fmt, save_figure, score_of, write_report  # noqa: E402
-from oracle import OracleEditor, recoloured  # noqa: E402
-
-from gae_jax import instructions  # noqa: E402
-from gae_jax.edit.config import preset  # noqa: E402
-from gae_jax.evaluation import protocols, score, truth  # noqa: E402
-from gae_jax.model import avatar_io, head  # noqa: E402
-from gae_jax.scene import rig as rigs  # noqa: E402
-from gae_jax.scene import synthetic  # noqa: E402
-from gae_jax.scene.types import posed_vertices, training_frames  # noqa: E402
-from gae_jax.train import original_avatar  # noqa: E402
-from gae_jax.util.fileio import cache_root  # noqa: E402
+from gae_jax import instructions
+from gae_jax.edit.config import preset
+from gae_jax.evaluation import protocols, score
+from gae_jax.model import avatar_io, head
+from gae_jax.run.bench import Bench, fmt, save_figure, score_of, write_report
+from gae_jax.run.oracle import OracleEditor, recoloured
+from gae_jax.run.original import original_avatar
+from gae_jax.scene import rig as rigs, synthetic
+from gae_jax.scene.types import posed_vertices, training_frames
+from gae_jax.util.fileio import cache_root
 
 # (prompt, shade): one light and one dark colour per region of the default head, the showcase,
 # stripes on the two large textured regions.
@@ -87,7 +83,6 @@ def groups_of(record: dict) -> list:
 
 def preserved_losses(record: dict) -> dict:
     """{(protocol, group): dB below the untouched avatar} (negative: above it)."""
-    ev = record["evaluation"]
     out = {}
     for p in protocols.PROTOCOLS:
         for g in groups_of(record):

@@ -15,18 +15,14 @@ Writes `<out>.json` (resumable) and `<out>.md`.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from editbench import Bench, default_scene_and_avatar, fmt, mean_over_protocols  # noqa: E402
-from editbench import write_report  # noqa: E402
-from oracle import OracleEditor  # noqa: E402
-
-from gae_jax.edit.config import preset  # noqa: E402
+from gae_jax.edit.config import preset
+from gae_jax.run.bench import (Bench, default_scene_and_avatar, fmt, mean_over_protocols,
+                               write_report)
+from gae_jax.run.oracle import OracleEditor
 
 PROMPT = "turn the lips blue"
 BLENDS = ("standard", "wabe_grad")

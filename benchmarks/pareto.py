@@ -24,18 +24,14 @@ import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from editbench import Bench, mean_over_protocols, renderer_settings, same_settings, save_figure  # noqa: E402,E501
-
-from gae_jax.edit import edit  # noqa: E402
-from gae_jax.edit.config import preset  # noqa: E402
-from gae_jax.evaluation import score  # noqa: E402
-from gae_jax.model import avatar as av  # noqa: E402
-from gae_jax.scene import rig as rigs  # noqa: E402
-from gae_jax.scene import synthetic  # noqa: E402
-from gae_jax.scene.types import posed_vertices, training_frames  # noqa: E402
-from gae_jax.train import original_avatar  # noqa: E402
+from gae_jax.edit import edit
+from gae_jax.edit.config import preset
+from gae_jax.evaluation import score
+from gae_jax.model import avatar as av
+from gae_jax.run.original import original_avatar
+from gae_jax.scene import rig as rigs, synthetic
+from gae_jax.scene.types import posed_vertices, training_frames
+from gae_jax.run.bench import Bench, mean_over_protocols, renderer_settings, same_settings, save_figure  # noqa: E501
 
 VARIANTS = {
     "default": {},
@@ -65,7 +61,7 @@ def run_variant(bench: Bench, name: str, knobs: dict, base, scene128):
     original = original_avatar(scene, base.reconstruct_iterations, progress=False)
     if "keep" in knobs:
         original = keep_most_opaque(original, knobs["keep"], scene.model.faces.shape[0])
-    session, _ = bench.session(config, scene, original)
+    session, _ = bench.setup(config, scene, original)
     auto_capacity = session.rig.tile_capacity
     if "capacity" in knobs:
         capacity = max(32, int(round(knobs["capacity"] * auto_capacity)))

@@ -1,4 +1,4 @@
-"""How fast the ground truth is ray cast (issue 17, item 2: rays per second).
+"""How fast the ground truth is ray cast (rays per second).
 
     python benchmarks/raycast.py [--head makehuman] [--out benchmarks/results/raycast.json]
 
@@ -14,12 +14,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
-
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def main(argv=None) -> dict:

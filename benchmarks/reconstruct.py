@@ -18,7 +18,7 @@ fit identity A's avatar on the training split, then score it against the ray-cas
     self_reenactment (held-out sequence, 8 frames, every 3rd training camera);
 and report wall time (fit incl. compilation), steps/s, Gaussian count. Prints one JSON object per
 variant and writes `<out>.json` and `<out>.png` (PSNR against time, marker size ~ Gaussians).
-Targets (issue 4): >= 30 dB held-out camera, >= 28 dB held-out sequence, < 180 s; (issue 15)
+Targets: >= 30 dB held-out camera, >= 28 dB held-out sequence, < 180 s;
 teeth >= 25 dB and eyes >= 30 dB where visible.
 
 `--truth-ceiling` scores the scene's own truth instead: the same frames ray-cast with 1x1 and

@@ -25,21 +25,17 @@ import sys
 import time
 
 import numpy as np
+from instructions import SUITE, summary
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from editbench import fmt, write_report  # noqa: E402
-from instructions import SUITE, summary  # noqa: E402
-from oracle import recoloured  # noqa: E402
-
-from gae_jax.edit.config import preset  # noqa: E402
-from gae_jax.evaluation import metrics, score, truth  # noqa: E402
-from gae_jax.model import head  # noqa: E402
-from gae_jax.scene import rig as rigs  # noqa: E402
-from gae_jax.scene import synthetic  # noqa: E402
-from gae_jax.scene.types import posed_vertices, training_frames  # noqa: E402
-from gae_jax.train import original_avatar  # noqa: E402
-from gae_jax.util.fileio import atomic_write_bytes  # noqa: E402
+from gae_jax.edit.config import preset
+from gae_jax.evaluation import metrics, score, truth
+from gae_jax.model import head
+from gae_jax.run.bench import fmt, write_report
+from gae_jax.run.oracle import recoloured
+from gae_jax.run.original import original_avatar
+from gae_jax.scene import rig as rigs, synthetic
+from gae_jax.scene.types import posed_vertices, training_frames
+from gae_jax.util.fileio import atomic_write_bytes
 
 STYLE = "make it an oil painting"  # no ideal: its evaluation set holds the unedited truth
 

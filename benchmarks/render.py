@@ -15,7 +15,7 @@ no padding) against the kernel's own exp on every core (`cpu_kernel.exp_rate`,
 `*_share_of_kernel_exp_bound`); `composite_exp_utilisation` counts only the pairs the kernel
 evaluates (the rows each Gaussian reaches), i.e. how busy its exp is. Also: overflowed tiles,
 tile capacity and peak RSS, and the same
-scene timed in the same process with `benchmarks/tile_reference.py` (a
+scene timed in the same process with `gae_jax/render/tile_reference.py` (a
 plain torch transcription of the standard tile algorithm, autograd for the backward; best of 3)
 with our speed-up over it (our best time against its best time). Each configuration runs in its
 own process so that peak RSS is its own (the reference's torch tensors count in it). The tile capacity
@@ -33,8 +33,8 @@ import subprocess
 import sys
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from benchmarks import walk_count  # noqa: E402
+from gae_jax.render import walk_count
+
 REFERENCE_REPEATS = 3  # the tile reference is slow; its best of 3 is its time
 KERNELS = ("auto", "jax")  # the C++ compositor where built, and the pure-JAX one
 
@@ -45,7 +45,7 @@ def reference_ms(g, camera, weights) -> tuple:
     import numpy as np
     import torch
 
-    from benchmarks import tile_reference
+    from gae_jax.render import tile_reference
 
     torch.set_num_threads(os.cpu_count() or 1)
     t = {k: torch.tensor(np.asarray(getattr(g, k), np.float32))
@@ -217,7 +217,7 @@ def main(argv=None):
                         help="fast: gae_jax.util.compile.compiler_options(); default: plain jax.jit. "
                              "Both run, interleaved per configuration, by default.")
     parser.add_argument("--no-reference", action="store_true",
-                        help="skip timing benchmarks/tile_reference.py (torch) in the same process")
+                        help="skip timing gae_jax/render/tile_reference.py (torch) in the same process")
     parser.add_argument("--no-jax", action="store_true",
                         help="time only the default compositor (the C++ kernel where built), "
                              "not the pure-JAX one beside it")

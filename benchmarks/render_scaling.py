@@ -1,4 +1,4 @@
-"""How the renderer's time scales with pixels and Gaussians per tile (issue 17, item 3).
+"""How the renderer's time scales with pixels and Gaussians per tile.
 
     python benchmarks/render_scaling.py [--sizes 64 128 256 512 1024]
                                         [--gaussians 2000 20000 100000 500000] [--repeats 5]
@@ -22,11 +22,8 @@ import os
 import subprocess
 import sys
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from editbench import save_figure  # noqa: E402
-
-from gae_jax.util.fileio import atomic_write_bytes  # noqa: E402
+from gae_jax.run.bench import save_figure
+from gae_jax.util.fileio import atomic_write_bytes
 
 RENDER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "render.py")
 

@@ -25,20 +25,16 @@ import sys
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from editbench import Bench, mean_over_protocols, save_figure, write_report  # noqa: E402
-
-from gae_jax.edit import edit  # noqa: E402
-from gae_jax.edit.config import StepConfig, preset  # noqa: E402
-from gae_jax.evaluation import metrics, protocols, truth  # noqa: E402
-from gae_jax.model import avatar_io, head  # noqa: E402
-from gae_jax.render import splat  # noqa: E402
-from gae_jax.render.camera import look_at_w2c, make_camera  # noqa: E402
-from gae_jax.scene import rig as rigs  # noqa: E402
-from gae_jax.scene import synthetic  # noqa: E402
-from gae_jax.scene.types import Sequence, posed_vertices, training_frames  # noqa: E402
-from gae_jax.train import original_avatar  # noqa: E402
+from gae_jax.edit import edit
+from gae_jax.edit.config import StepConfig, preset
+from gae_jax.evaluation import metrics, protocols, truth
+from gae_jax.model import avatar_io, head
+from gae_jax.render import splat
+from gae_jax.render.camera import look_at_w2c, make_camera
+from gae_jax.run.bench import Bench, mean_over_protocols, save_figure, write_report
+from gae_jax.run.original import original_avatar
+from gae_jax.scene import rig as rigs, synthetic
+from gae_jax.scene.types import Sequence, posed_vertices, training_frames
 
 SWEEPS = {
     "beta": [(f"wabe_grad_beta_{b:g}", dict(blend="wabe_grad", beta=b), b)
@@ -203,7 +199,7 @@ def main(argv=None) -> int:
                       extra=dict(sweep=sweep),
                       on_edited=keep_default if name == DEFAULT_VARIANT else None)
     if not os.path.isfile(default_ply):  # resumed after the default variant was recorded
-        session, _ = bench.session(base, scene, original)
+        session, _ = bench.setup(base, scene, original)
         keep_default(edit.edit_avatar(session)[0])
     rows = extremes(base, scene, original,
                     avatar_io.load_bound_avatar(default_ply, scene.face_regions))

@@ -16,16 +16,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from gae_jax.util.fileio import atomic_write_bytes  # noqa: E402
-from gae_jax.viewer import frames, pose, source  # noqa: E402
+from gae_jax.util.fileio import atomic_write_bytes
+from gae_jax.viewer import frames, pose, source
 
 
 def timed(fn, repeats: int) -> dict:

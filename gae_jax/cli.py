@@ -85,7 +85,7 @@ def given(args: argparse.Namespace, cls) -> dict:
 
 
 def check_run_folder(out: str, resume: bool, overwrite: bool, checkpoint: str,
-                     marker: str = "metrics.json") -> None:
+                     marker: str) -> None:
     """Makes sure `out` can hold this run: a folder (made if missing) that holds no other run
     (its `marker` or `checkpoint`) unless `overwrite` -- whose stale checkpoints are then
     removed -- or, with `resume`, one that holds `checkpoint`. ValueError otherwise."""

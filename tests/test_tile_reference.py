@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from benchmarks import tile_reference
+from gae_jax.render import tile_reference
 from gae_jax.demo import random_frustum_scene
 from gae_jax.render import splat
 from tests import bruteforce

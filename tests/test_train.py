@@ -18,6 +18,7 @@ from gae_jax.evaluation import protocols, truth
 from gae_jax.fit.config import ReconstructConfig
 from gae_jax.fit.fit import initial_avatar
 from gae_jax.model import head
+from gae_jax.run import job
 from gae_jax.scene import rig as rigs
 from gae_jax.scene import synthetic
 from gae_jax.scene.load import SCENE_HELP, SceneConfig
@@ -131,7 +132,7 @@ def test_resume_after_interruption_equals_the_uninterrupted_run(base, tmp_path):
 
 
 def test_sharded_run_over_two_devices_equals_one_device(base, tmp_path, monkeypatch):
-    """Through `train.run` (the CLI's job): batch 2 is split over a ("data",) mesh of the two
+    """Through `run.job.run` (the CLI's job): batch 2 is split over a ("data",) mesh of the two
     forced CPU devices, and the edited avatar equals the single-device run's."""
     from gae_jax.model import avatar_io
 
@@ -149,10 +150,10 @@ def test_sharded_run_over_two_devices_equals_one_device(base, tmp_path, monkeypa
         return out
 
     monkeypatch.setattr(edit, "put_batch", spy)
-    m2 = train.run(config, str(tmp_path / "two"), scene, original, progress=False, video=False)
+    m2 = job.run(config, str(tmp_path / "two"), scene, original, progress=False, video=False)
     assert placed == [2, 2]
     monkeypatch.setattr(edit, "data_mesh", lambda batch: None)
-    m1 = train.run(config, str(tmp_path / "one"), scene, original, progress=False, video=False)
+    m1 = job.run(config, str(tmp_path / "one"), scene, original, progress=False, video=False)
     assert placed[2:] == [1, 1]
     one, two = (avatar_io.load_avatar_ply(str(tmp_path / d / "edited_avatar" / "point_cloud.ply"))
                 for d in ("one", "two"))
@@ -225,7 +226,7 @@ def test_run_writes_a_self_contained_folder_that_evaluate_rescores(base, tmp_pat
     scene, original = base
     config = edit_config.preset("fast", iterations=3, checkpoint_every=0)
     out = tmp_path / "run"
-    metrics = train.run(config, str(out), scene, original, progress=False, video=False)
+    metrics = job.run(config, str(out), scene, original, progress=False, video=False)
     for name in ("metrics.json", "grid.png", "edited_posed.ply", truth.FILE_NAME,
                  "edited_avatar/point_cloud.ply", "edited_avatar/flame_param.npz",
                  "original_avatar/point_cloud.ply", "motion.npz"):

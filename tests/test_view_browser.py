@@ -11,8 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from gae_jax import view
-from gae_jax.viewer import source
+from gae_jax.viewer import app, source
 from tests.test_viewer import tiny_run_folder
 
 CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
@@ -77,7 +76,7 @@ def test_the_page_shows_the_head_and_the_jaw_slider_moves_it(tmp_path, browser):
     from selenium.webdriver.common.keys import Keys
 
     run = tiny_run_folder(tmp_path / "run")
-    viewer = view.Viewer(source.from_run(str(run)), port=0, size=128,
+    viewer = app.Viewer(source.from_run(str(run)), port=0, size=128,
                          screenshots=str(tmp_path / "shots"))
     try:
         browser.get(f"http://127.0.0.1:{viewer.port}")

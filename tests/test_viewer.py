@@ -3,7 +3,6 @@ FLAME parameters, the browser's camera becomes the same pinhole camera viser des
 renders as the training path renders it (capacity grown on overflow), and a run or avatar
 folder loads with clear errors when it is not one."""
 
-import json
 import socket
 
 import jax
@@ -15,14 +14,15 @@ from gae_jax import view
 from gae_jax.edit.config import EditConfig
 from gae_jax.evaluation import truth
 from gae_jax.model import avatar as av
-from gae_jax.model import avatar_io, flame, head
+from gae_jax.model import flame, head
 from gae_jax.render import wabe
 from gae_jax.render.projection import quat_to_rotmat
+from gae_jax.run import folder
 from gae_jax.scene import motion_io, synthetic
 from gae_jax.scene import rig as rigs
 from gae_jax.scene.load import SceneConfig
 from gae_jax.scene.types import stacked_params
-from gae_jax.viewer import frames, pose, source
+from gae_jax.viewer import app, frames, pose, source
 from tests.helpers import tree_allclose
 
 POSE_TOL = 1e-5  # float32 skinning of the same parameters along two code paths
@@ -30,7 +30,7 @@ RIG_SIZE = 64
 
 
 def tiny_run_folder(path, num_expr_frames: int = 4):
-    """A run folder as `train.run` writes it (the same writers), with untrained splats on the
+    """A run folder as `run.job.run` writes it (the same writers), with untrained splats on the
     procedural head: avatars, metrics.json, evaluation_set.npz (cameras only) and motion.npz."""
     model, assets = head.make_head("procedural")
     avatar = av.init_from_mesh(model.v_template, model.faces, assets.vertex_colors,
@@ -46,17 +46,17 @@ def tiny_run_folder(path, num_expr_frames: int = 4):
                                                               "log_scales", "opacity_logits",
                                                               "regions")},
                           "colors": avatar.colors * 0.5})
-    for name, a in (("edited_avatar", edited), ("original_avatar", avatar)):
-        avatar_io.save_avatar_folder(str(path / name), a, shapes["A"], frames_a,
-                                     num_vertices=model.num_vertices)
+    for which, a in (("edited", edited), ("original", avatar)):
+        folder.write_avatar(str(path), which, a, shapes["A"], frames_a, None, model.num_vertices)
     intrinsics, w2c = synthetic.camera_rig(9, RIG_SIZE)
     evalset = truth.EvalSet("turn the lips blue", "lips", "ideal edit", np.asarray(model.faces),
                             assets.face_regions, intrinsics, w2c, np.ones(3), RIG_SIZE, RIG_SIZE,
                             {})
-    truth.save(evalset, str(path / truth.FILE_NAME))
-    motion_io.save(str(path / motion_io.FILE_NAME), sequences, shapes)
-    metrics = dict(config=dict(EditConfig().__dict__), scene=dict(SceneConfig(head="procedural").__dict__))
-    (path / "metrics.json").write_text(json.dumps(metrics))
+    truth.save(evalset, folder.path(str(path), "evaluation_set"))
+    motion_io.save(folder.path(str(path), "motion"), sequences, shapes)
+    folder.write_metrics(str(path), dict(config=dict(EditConfig().__dict__),
+                                         scene=dict(SceneConfig(head="procedural").__dict__),
+                                         tile_capacity=256))
     return path
 
 
@@ -239,7 +239,7 @@ def stacked_params_of(seq, shapes):
 
 
 def test_an_avatar_folder_views_on_the_embedded_rig(run_dir):
-    v = source.from_avatar(str(run_dir / "original_avatar"), "procedural")
+    v = source.from_avatar(folder.path(str(run_dir), "original"), "procedural")
     assert list(v.avatars) == ["avatar"] and source.AVATAR_MOTION in v.sequences
     assert "mix" in v.sequences and v.w2c.shape[0] == source.RIG_CAMERAS
 
@@ -247,10 +247,10 @@ def test_an_avatar_folder_views_on_the_embedded_rig(run_dir):
 def test_an_avatar_folder_bound_to_a_flame_file_poses_as_the_embedded_head(run_dir, tmp_path):
     from gae_jax.model import flame_io
 
-    embedded = source.from_avatar(str(run_dir / "original_avatar"), "procedural")
+    embedded = source.from_avatar(folder.path(str(run_dir), "original"), "procedural")
     path = str(tmp_path / "generic_model.pkl")
     flame_io.save_flame(embedded.model, path)  # FLAME's own pickle layout
-    v = source.from_avatar(str(run_dir / "original_avatar"), flame_model=path)
+    v = source.from_avatar(folder.path(str(run_dir), "original"), flame_model=path)
     assert v.expr_names == tuple(f"expression {i}" for i in range(embedded.model.num_expr))
     assert list(v.sequences) == [source.AVATAR_MOTION]
     seq = v.sequences[source.AVATAR_MOTION]
@@ -263,12 +263,12 @@ def test_an_avatar_folder_bound_to_a_flame_file_poses_as_the_embedded_head(run_d
 
 def test_the_cli_refuses_bad_folders_and_a_busy_port_in_one_line(tmp_path, run_dir, capsys):
     (tmp_path / "empty").mkdir()
-    cases = [([str(tmp_path / "empty")], "no edited_avatar/point_cloud.ply"),
+    cases = [([str(tmp_path / "empty")], "metrics.json not found; is"),
              ([str(tmp_path / "missing")], "no such folder"),
              (["--avatar", str(tmp_path / "empty")], "no point_cloud.ply"),
              ([], "give a run folder or --avatar"),
              ([str(run_dir), "--size", "4", "--port", "0"], "--size 4"),
-             (["--avatar", str(run_dir / "original_avatar"), "--head", "makehuman",
+             (["--avatar", folder.path(str(run_dir), "original"), "--head", "makehuman",
                "--port", "0"], "another model")]
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
@@ -284,7 +284,7 @@ def test_the_cli_refuses_bad_folders_and_a_busy_port_in_one_line(tmp_path, run_d
 def test_the_player_loads_each_frame_into_the_sliders_with_the_sequences_identity(viewable):
     import time
 
-    viewer = view.Viewer(viewable, port=0, size=32)
+    viewer = app.Viewer(viewable, port=0, size=32)
     try:
         viewer.sequence.value = "b_mix"
         assert viewer.identity.value == "B"

@@ -1,6 +1,6 @@
-"""The WABE study's rows and its claim arithmetic (benchmarks/wabe_scenario.py)."""
+"""The WABE study's rows and its claim arithmetic (gae_jax/run/wabe_scenario.py)."""
 
-from benchmarks import wabe_scenario
+from gae_jax.run import wabe_scenario
 from gae_jax.edit.config import EditConfig
 from gae_jax.evaluation import protocols
 

@@ -1,10 +1,10 @@
-"""`benchmarks/walk_count.replay` against the C++ compositor it counts: the same per-pixel
+"""`render.walk_count.replay` against the C++ compositor it counts: the same per-pixel
 transmittance and last composited slot, and a pair count between the kernel's own lower bound
 and the tile lists' size."""
 
 import numpy as np
 
-from benchmarks import walk_count
+from gae_jax.render import walk_count
 from gae_jax.render import cpu_kernel
 from gae_jax.render import composite as comp
 from gae_jax.render import wabe

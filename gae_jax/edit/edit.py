@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from typing import Optional
+from typing import Callable, Optional
 
 import jax
 import jax.numpy as jnp
@@ -33,44 +33,45 @@ RESUME_FREE = ("checkpoint_every", "clip_folder")
 RESUME_GROWABLE = ("iterations",)  # more iterations extend a run
 
 
-@dataclasses.dataclass
-class Session:
-    """What `setup` builds: scene, original avatar, device rig, step functions, and `canonical`
-    (N, 6): each Gaussian's head-space position and normal (the rest pose)."""
+@dataclasses.dataclass(frozen=True)
+class EditSetup:
+    """What `setup` builds, fixed for the edit: scene, original avatar, device rig, the training
+    (sequence, frame) pairs, `canonical` (N, 6): each Gaussian's head-space position and normal
+    (the rest pose), and the jitted step and preview."""
 
     config: EditConfig
     step_config: StepConfig
     scene: Scene
     original: av.Avatar
     rig: rigs.Rig
-    pairs: list
+    pairs: tuple
     canonical: jax.Array
-    step: object
-    preview: object
+    step: Callable
+    preview: Callable
 
 
 def setup(config: EditConfig, scene: Scene, original: av.Avatar, step=None,
-          preview=None) -> Session:
+          preview=None) -> EditSetup:
     """Device data and jitted functions of an edit (pass `step` / `preview` to reuse compiled
     ones of the same StepConfig)."""
-    pairs = training_frames(scene)
+    pairs = tuple(training_frames(scene))
     rig = rigs.put_rig(scene, original, posed_vertices(scene, pairs))
     step_config = StepConfig.of(config)
     rest = scene.model.v_template
     canonical = jnp.concatenate([
         av.deform(original, rest, scene.model.faces).means,
         jnp.asarray(av.gaussian_normals(original.binding, rest, scene.model.faces))], -1)
-    return Session(config, step_config, scene, original, rig, pairs, canonical,
+    return EditSetup(config, step_config, scene, original, rig, pairs, canonical,
                    step or make_edit_step(step_config), preview or make_preview(step_config.blend))
 
 
-def make_sampler(session: Session, editor=None) -> EditSampler:
+def make_sampler(session: EditSetup, editor=None) -> EditSampler:
     s = session
     return EditSampler(s.config, s.scene, s.pairs, s.preview, s.rig, s.canonical,
                        (region.make_tracer(), region.make_coverage()), editor)
 
 
-def fresh_state(session: Session) -> EditState:
+def fresh_state(session: EditSetup) -> EditState:
     size = (session.rig.height, session.rig.width)
     return initial_state(session.step_config, session.original.trainable(), size,
                          jax.random.PRNGKey(session.config.seed + 1))
@@ -99,7 +100,7 @@ def _load(path, template, sampler: EditSampler, config):
     return trees["state"], meta["history"]
 
 
-def edit_avatar(session: Session, out_dir: Optional[str] = None, resume: bool = False,
+def edit_avatar(session: EditSetup, out_dir: Optional[str] = None, resume: bool = False,
                 progress: bool = False, stop_after: Optional[int] = None,
                 progress_fn=None, keep_checkpoint: bool = True, editor=None):
     """Runs the loop; returns (edited Avatar, history). Checkpoints into `out_dir` every

@@ -22,6 +22,7 @@ from gae_jax.edit.config import EditConfig
 from gae_jax.edit.editors import make_editor
 from gae_jax.model import head
 from gae_jax.scene.types import projected_labels, training_labels
+from gae_jax.util.image import to_uint8
 
 
 SHOWING_FRACTION = 0.25  # of the pixels a well-showing view shows, for a view to count
@@ -151,7 +152,7 @@ class EditSampler:
         edited = np.clip(edited, 0, 1)
         if self.region != ("none",):
             edited = self.composited(params, cam, row, edited, unedited, view, labels)
-        edited = (edited * 255 + 0.5).astype(np.uint8)
+        edited = to_uint8(edited)
         self.cache[(cam, row)] = edited
         return edited
 

@@ -15,7 +15,6 @@ needs nothing else: no scene, no model, no refit.
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
 from typing import Callable, Optional
 
@@ -25,7 +24,7 @@ from gae_jax import instructions
 from gae_jax.evaluation import protocols
 from gae_jax.scene import raycast, synthetic
 from gae_jax.scene.types import Scene, posed_vertices
-from gae_jax.util.fileio import atomic_write_bytes
+from gae_jax.util.fileio import write_npz
 
 FILE_NAME = "evaluation_set.npz"
 
@@ -167,9 +166,7 @@ def save(evalset: EvalSet, path: str) -> None:
             arrays.update({f"{key}/vertices": f.vertices, f"{key}/truth": f.truth,
                            f"{key}/regions": f.regions})
     arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, **arrays)
-    atomic_write_bytes(path, buffer.getvalue())
+    write_npz(path, arrays, compressed=True)
 
 
 def load(path: str) -> EvalSet:

@@ -16,7 +16,6 @@ file this project does not use are carried through an edit (`extra`).
 
 from __future__ import annotations
 
-import io as _io
 
 import jax.numpy as jnp
 import numpy as np
@@ -24,7 +23,7 @@ import numpy as np
 from gae_jax.render import sh
 from gae_jax.model.avatar import Avatar
 from gae_jax.model.flame import FlameParams
-from gae_jax.util.fileio import PlyError, atomic_write_bytes, read_ply, require, write_ply
+from gae_jax.util.fileio import PlyError, read_ply, require, write_npz, write_ply
 from gae_jax.render.splat import Gaussians
 
 FLAME_PARAM_KEYS = ("rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation", "expr")
@@ -132,9 +131,7 @@ def save_flame_params(path: str, shape, frames: FlameParams, static_offset=None,
                   dynamic_offset=np.zeros((t,) + offset.shape[1:], np.float32))
     arrays = {k: np.asarray(v, np.float32) for k, v in arrays.items()}
     arrays.update({k: v for k, v in (extra or {}).items() if k not in arrays})
-    buf = _io.BytesIO()
-    np.savez(buf, **arrays)
-    atomic_write_bytes(path, buf.getvalue())
+    write_npz(path, arrays)
 
 
 def extra_flame_params(path: str) -> dict:

@@ -21,7 +21,7 @@ import numpy as np
 
 from gae_jax.model.flame import FlameModel
 from gae_jax.model.head import REGION_ID
-from gae_jax.util.fileio import atomic_write_bytes
+from gae_jax.util.fileio import atomic_write_bytes, write_npz
 
 FLAME_IDENTITY_COMPONENTS = 300  # columns of the pickle's shapedirs before the expression ones
 # FLAME_masks.pkl names -> our regions (names equal to one of ours map to themselves).
@@ -245,10 +245,9 @@ def save_flame(model: FlameModel, path: str) -> None:
             f=arrays["f"].astype(np.uint32))
         atomic_write_bytes(path, pickle.dumps(arrays, protocol=2))
         return
-    buf = io.BytesIO()
-    np.savez(buf, shapedirs=np.asarray(model.shapedirs), exprdirs=np.asarray(model.exprdirs),
-             parents=np.asarray(model.parents), **arrays)
-    atomic_write_bytes(path, buf.getvalue())
+    write_npz(path, dict(shapedirs=np.asarray(model.shapedirs),
+                         exprdirs=np.asarray(model.exprdirs),
+                         parents=np.asarray(model.parents), **arrays))
 
 
 def load_flame_masks(path: str) -> dict:

@@ -16,16 +16,13 @@ part, pout. Deterministic, a few thousand vertices, built in milliseconds with n
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax.numpy as jnp
 import numpy as np
 
+from gae_jax.model import makehuman
 from gae_jax.model.flame import FLAME_PARENTS, FlameModel, FlameParams
-
-# "tongue" is the MakeHuman head's (model/makehuman.py); the procedural head has none.
-REGIONS = ("skin", "hair", "brows", "lips", "mouth", "teeth", "sclera", "iris", "pupil", "tongue")
-REGION_ID = {name: i for i, name in enumerate(REGIONS)}
+# The heads' region vocabulary, read as head.REGION_ID by the stages above.
+from gae_jax.model.regions import REGION_ID, REGIONS, HeadAssets  # noqa: F401
 SHAPE_NAMES = ("head_width", "nose_length", "jaw_width")
 EXPR_NAMES = ("blink_left", "blink_right", "smile", "brow_raise", "lips_part", "pout")
 ALBEDO = dict(skin=(0.87, 0.68, 0.56), hair=(0.25, 0.16, 0.10), brows=(0.22, 0.14, 0.09),
@@ -47,18 +44,6 @@ EYE_CAP_DEGREES = 110.0  # the eyeball is modelled up to this angle from the gaz
 JAW_PIVOT = np.array([0.0, -0.015, 0.0])
 NECK_PIVOT = np.array([0.0, -0.075, -0.01])
 ROOT = np.array([0.0, -0.11, -0.02])
-
-
-@dataclasses.dataclass(frozen=True)
-class HeadAssets:
-    """Per-face region labels (F,) int32 (index into `REGIONS`), per-vertex albedo (V, 3), and
-    the names of the model's expression and identity directions (in column order)."""
-
-    face_regions: np.ndarray
-    vertex_colors: np.ndarray
-    region_names: tuple = REGIONS
-    expr_names: tuple = EXPR_NAMES
-    shape_names: tuple = SHAPE_NAMES
 
 
 class _Builder:
@@ -300,8 +285,6 @@ def make_head(kind: str = "procedural") -> tuple[FlameModel, HeadAssets]:
     kind: `procedural` (this module's) or `makehuman` (the MakeHuman base head with the 52 ARKit
     face units, `model/makehuman.py`)."""
     if kind == "makehuman":
-        from gae_jax.model import makehuman
-
         return makehuman.load()
     if kind != "procedural":
         raise ValueError(f"unknown head {kind!r}; built-in heads: {', '.join(HEAD_KINDS)}")
@@ -340,7 +323,8 @@ def make_head(kind: str = "procedural") -> tuple[FlameModel, HeadAssets]:
         faces=jnp.asarray(np.concatenate(b.faces), jnp.int32),
         parents=FLAME_PARENTS)
     assets = HeadAssets(face_regions=np.concatenate(b.regions).astype(np.int32),
-                        vertex_colors=np.concatenate(b.colors).astype(np.float32))
+                        vertex_colors=np.concatenate(b.colors).astype(np.float32),
+                        expr_names=EXPR_NAMES, shape_names=SHAPE_NAMES)
     return model, assets
 
 

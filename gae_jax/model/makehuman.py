@@ -22,8 +22,8 @@ import os
 import jax.numpy as jnp
 import numpy as np
 
-from gae_jax.model import head
 from gae_jax.model.flame import FLAME_PARENTS, FlameModel
+from gae_jax.model.regions import REGIONS, HeadAssets
 
 ASSET = os.path.join(os.path.dirname(os.path.abspath(__file__)), "assets", "makehuman_head.npz")
 
@@ -37,20 +37,20 @@ def _arrays(path: str) -> dict:
         return {k: data[k] for k in data.files}
 
 
-def load(path: str = ASSET) -> tuple[FlameModel, head.HeadAssets]:
+def load(path: str = ASSET) -> tuple[FlameModel, HeadAssets]:
     """(FlameModel, HeadAssets) of the MakeHuman head: V ~ 5.5k vertices, F ~ 10k faces,
     52 expression and 16 identity directions (names in `HeadAssets`)."""
     a = _arrays(path)
     names = tuple(str(n) for n in a["region_names"])
-    if names != head.REGIONS[:len(names)]:
-        raise ValueError(f"{path}: regions {names} do not match gae_jax's {head.REGIONS}")
+    if names != REGIONS[:len(names)]:
+        raise ValueError(f"{path}: regions {names} do not match gae_jax's {REGIONS}")
     v = a["v_template"].shape[0]
     model = FlameModel(
         v_template=jnp.asarray(a["v_template"]), shapedirs=jnp.asarray(a["shapedirs"]),
         exprdirs=jnp.asarray(a["exprdirs"]), posedirs=jnp.zeros((v, 3, 36), jnp.float32),
         j_regressor=jnp.asarray(a["j_regressor"]), lbs_weights=jnp.asarray(a["lbs_weights"]),
         faces=jnp.asarray(a["faces"], jnp.int32), parents=FLAME_PARENTS)
-    assets = head.HeadAssets(face_regions=a["face_regions"].astype(np.int32),
+    assets = HeadAssets(face_regions=a["face_regions"].astype(np.int32),
                              vertex_colors=a["vertex_colors"].astype(np.float32),
                              expr_names=tuple(str(n) for n in a["expr_names"]),
                              shape_names=tuple(str(n) for n in a["shape_names"]))

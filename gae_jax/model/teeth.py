@@ -23,7 +23,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from gae_jax.model.flame import FLAME_VERTICES, JAW_JOINT, NECK_JOINT, FlameModel
+from gae_jax.model.flame import JAW_JOINT, NECK_JOINT, FlameModel
 
 # FLAME's outer lip rings (GaussianAvatars' FlameMask), paired by position, left to right.
 FLAME_UPPER_LIP = (1713, 1715, 1716, 1735, 1696, 1694, 1657, 3543, 2774, 2811, 2813, 2850, 2833,

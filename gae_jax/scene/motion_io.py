@@ -11,13 +11,12 @@ sequence's identity and split, in the scene's order.
 
 from __future__ import annotations
 
-import io
 import json
 
 import numpy as np
 
 from gae_jax.scene.types import SPLITS, Sequence
-from gae_jax.util.fileio import atomic_write_bytes
+from gae_jax.util.fileio import write_npz
 
 FILE_NAME = "motion.npz"
 FIELDS = dict(expr=None, rotation=3, neck=3, jaw=3, eyes=6, translation=3)
@@ -35,9 +34,7 @@ def save(path: str, sequences: dict, shapes: dict, static_offsets: dict | None =
         arrays.update({f"sequence/{name}/{f}": np.asarray(getattr(seq, f), np.float32)
                        for f in FIELDS})
     arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, **arrays)
-    atomic_write_bytes(path, buffer.getvalue())
+    write_npz(path, arrays, compressed=True)
 
 
 def load(path: str, num_expr: int, num_shape: int) -> tuple[dict, dict, dict]:

@@ -19,7 +19,6 @@ folders (`../SEQ/flame_param/...`): every path is taken relative to the folder r
 from __future__ import annotations
 
 import dataclasses
-import io as _io
 import json
 import os
 
@@ -27,7 +26,7 @@ import numpy as np
 
 from gae_jax.model.flame import fit_static_offset
 from gae_jax.scene.types import Scene, Sequence
-from gae_jax.util.fileio import atomic_write_bytes, encode_png
+from gae_jax.util.fileio import atomic_write_bytes, encode_png, npz_bytes
 
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 FRAME_FIELDS = ("timestep_index", "camera_index", "cx", "cy", "fl_x", "fl_y", "h", "w",
@@ -57,9 +56,7 @@ def _write_json(path, obj):
 
 def _npz_bytes(**arrays) -> bytes:
     """An uncompressed .npz of float32 arrays (VHAP writes float32)."""
-    buf = _io.BytesIO()
-    np.savez(buf, **{k: np.asarray(v, np.float32) for k, v in arrays.items()})
-    return buf.getvalue()
+    return npz_bytes({k: np.asarray(v, np.float32) for k, v in arrays.items()})
 
 
 def export_scene(scene, folder: str) -> dict:

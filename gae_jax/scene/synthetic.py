@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import io
 import json
 import os
 import sys
@@ -33,10 +32,11 @@ from gae_jax.model import avatar, flame, head
 from gae_jax.render.camera import Camera, look_at_w2c, make_camera
 from gae_jax.scene.raycast import ray_sets, raycast_views
 from gae_jax.scene.types import Scene, Sequence
-from gae_jax.util.fileio import atomic_write_bytes, cache_root
+from gae_jax.util.fileio import cache_root, write_npz
+from gae_jax.util.image import to_uint8
 
 # 4: embree's own barycentrics (float32) instead of a float64 re-intersection; 1.3e-5 of the
-# 8-bit values changed (77.9 dB between versions at worst, 2026-12-03)
+# 8-bit values changed (77.9 dB between versions at worst)
 SCENE_VERSION = 4
 LIGHT_DIRECTION = np.array([0.35, 0.55, 0.75])  # in head space, towards the light
 AMBIENT = 0.45
@@ -231,7 +231,7 @@ def render_frame(model, face_regions, vertex_colors, shape, sequence: Sequence, 
                           rig_cameras(intrinsics, w2c, size), background, supersample, rays=rays,
                           shader=shader)
     for c, out in enumerate(views):
-        images[c] = (np.clip(out.image, 0, 1) * 255 + 0.5).astype(np.uint8)
+        images[c] = to_uint8(out.image)
         regions[c] = out.regions
     return images, regions
 
@@ -354,8 +354,6 @@ def _read_cache(path, sequences, shape):
 
 
 def _save_cache(path, images, regions):
-    buf = io.BytesIO()
     arrays = {f"images/{k}": v for k, v in images.items()}
     arrays.update({f"regions/{k}": v for k, v in regions.items()})
-    np.savez_compressed(buf, **arrays)
-    atomic_write_bytes(path, buf.getvalue())
+    write_npz(path, arrays, compressed=True)

@@ -36,6 +36,20 @@ def atomic_write_bytes(path: str, data: bytes) -> None:
         raise
 
 
+def npz_bytes(arrays: dict, compressed: bool = False) -> bytes:
+    """The .npz file of `arrays` (name -> array), as bytes."""
+    import io
+
+    buffer = io.BytesIO()
+    (np.savez_compressed if compressed else np.savez)(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def write_npz(path: str, arrays: dict, compressed: bool = False) -> None:
+    """`arrays` (name -> array) as an .npz file at `path`, atomically."""
+    atomic_write_bytes(path, npz_bytes(arrays, compressed))
+
+
 # ----------------------------------------------------------------------------------------------
 # PLY (binary little-endian, one `vertex` element of float32 properties, as 3DGS writes it)
 
@@ -122,7 +136,9 @@ def encode_png(image) -> bytes:
 
     arr = np.asarray(image)
     if arr.dtype != np.uint8:
-        arr = (np.clip(arr, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+        from gae_jax.util.image import to_uint8
+
+        arr = to_uint8(arr)
     if arr.ndim == 3:
         arr = arr[..., ::-1]
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr))

@@ -10,19 +10,16 @@ folder gives one avatar and its `flame_param.npz`; the cameras are the embedded 
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 
 import numpy as np
 
-from gae_jax.edit.config import EditConfig, StepConfig
-from gae_jax.evaluation import truth
 from gae_jax.model import avatar_io, flame, head
-from gae_jax.model.avatar import Avatar
 from gae_jax.model.flame import FlameModel
 from gae_jax.render import wabe
+from gae_jax.run import folder as run_folder
 from gae_jax.scene import motion_io, synthetic
-from gae_jax.scene.load import SceneConfig, load_model
+from gae_jax.scene.load import load_model
 from gae_jax.scene.types import Sequence
 
 RIG_CAMERAS = 16
@@ -58,14 +55,6 @@ class Viewable:
     background: np.ndarray
     blend: wabe.Blend
     static_offsets: dict = dataclasses.field(default_factory=dict)
-
-
-def _avatar_file(folder: str) -> str:
-    path = os.path.join(folder, "point_cloud.ply")
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"{folder}: no point_cloud.ply (not a GaussianAvatars avatar "
-                                "folder)")
-    return path
 
 
 def _motion_of(shape, frames, folder: str, model: FlameModel) -> tuple[np.ndarray, Sequence]:
@@ -115,50 +104,29 @@ def _model_for(folder: str, head_kind: str, flame_model: str, flame_masks: str,
 def from_run(run_dir: str) -> Viewable:
     """The edited and original avatars of a run folder; FileNotFoundError / ValueError naming
     what is missing or unreadable."""
-    if not os.path.isdir(run_dir):
-        raise NotADirectoryError(f"{run_dir}: no such folder")
-    edited_dir = os.path.join(run_dir, "edited_avatar")
-    if not os.path.isfile(os.path.join(edited_dir, "point_cloud.ply")):
-        raise FileNotFoundError(f"{run_dir}: no edited_avatar/point_cloud.ply (is it a run "
-                                "folder of python -m gae_jax.train? --avatar DIR views a "
-                                "GaussianAvatars folder)")
-    metrics_path = os.path.join(run_dir, "metrics.json")
-    try:
-        with open(metrics_path) as f:
-            saved = json.load(f)
-        scene_config = SceneConfig(**saved["scene"])
-        config = EditConfig(**saved["config"])
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{metrics_path}: no such file (the run did not finish?)") \
-            from None
-    except (json.JSONDecodeError, KeyError, TypeError) as e:
-        raise ValueError(f"{metrics_path}: not a metrics file of this version ({e})") from None
+    run = run_folder.read(run_dir)
+    edited_dir = run.avatar_folder("edited")
     model, regions, assets, shape, frames = _model_for(
-        edited_dir, scene_config.head, scene_config.flame_model, scene_config.flame_masks,
-        scene_config.flame_teeth)
-    avatars = {}
-    for label in ("edited", "original"):
-        path = _avatar_file(os.path.join(run_dir, f"{label}_avatar"))
-        avatars[label] = avatar_io.load_bound_avatar(path, regions)
-    if avatars["edited"].num != avatars["original"].num:
-        raise ValueError(f"{run_dir}: the edited avatar has {avatars['edited'].num} Gaussians, "
-                         f"the original {avatars['original'].num}")
+        edited_dir, run.scene.head, run.scene.flame_model, run.scene.flame_masks,
+        run.scene.flame_teeth)
+    loaded = run.avatars(regions)
+    avatars = {"edited": loaded["edited"], "original": loaded["original"]}
     offset = _static_offset(frames, model)
     shape, own = _motion_of(shape, frames, edited_dir, model)
-    motion_path = os.path.join(run_dir, motion_io.FILE_NAME)
-    if os.path.isfile(motion_path):
+    motion_path = run.motion_file()
+    if motion_path is not None:
         sequences, shapes, offsets = motion_io.load(motion_path, model.num_expr,
                                                     model.num_shape)
     else:
         sequences, shapes = {AVATAR_MOTION: own}, {"A": shape}
         offsets = {} if offset is None else {"A": offset}
-    evalset = truth.load(os.path.join(run_dir, truth.FILE_NAME))
+    evalset = run.evaluation_set()
     return Viewable(
-        title=f'{os.path.basename(os.path.normpath(run_dir))}: "{config.prompt}"', model=model,
-        expr_names=_expr_names(model, assets), avatars=avatars, shapes=shapes,
+        title=f'{os.path.basename(os.path.normpath(run_dir))}: "{run.config.prompt}"',
+        model=model, expr_names=_expr_names(model, assets), avatars=avatars, shapes=shapes,
         sequences=sequences, intrinsics=evalset.intrinsics, w2c=evalset.w2c,
         width=evalset.width, height=evalset.height, background=evalset.background,
-        blend=StepConfig.of(config).blend, static_offsets=offsets)
+        blend=run.blend, static_offsets=offsets)
 
 
 def from_avatar(folder: str, head_kind: str = "procedural", flame_model: str = "",
@@ -168,7 +136,7 @@ def from_avatar(folder: str, head_kind: str = "procedural", flame_model: str = "
     folder's own plus, for a built-in head, the embedded scene's library."""
     if not os.path.isdir(folder):
         raise NotADirectoryError(f"{folder}: no such folder")
-    ply = _avatar_file(folder)
+    ply = run_folder.avatar_file(folder)
     model, regions, assets, shape, frames = _model_for(folder, head_kind, flame_model,
                                                        flame_masks)
     offset = _static_offset(frames, model)

@@ -13,6 +13,7 @@ import numpy as np
 
 from gae_jax.edit.editors.base import as_image
 from gae_jax.instructions import parse_style
+from gae_jax.util.image import to_uint8
 
 @dataclasses.dataclass(frozen=True)
 class StyleEditor:
@@ -30,7 +31,7 @@ class StyleEditor:
         style = parse_style(prompt)
         image = as_image(render, "render")
         u = 0.5 + self.jitter * (np.asarray(jax.random.uniform(key, (6,))) - 0.5)
-        bgr = (image[..., ::-1] * 255 + 0.5).astype(np.uint8)
+        bgr = to_uint8(image[..., ::-1])
         if style == "oil":
             out = cv2.xphoto.oilPainting(bgr, 2 + int(3 * u[0]), 1 + int(2 * u[1]))
         elif style == "sketch":

@@ -1,11 +1,11 @@
-"""The colour-ceiling study's region outline, against a grid counted by hand."""
+"""A region's outline on a mesh (`regions.rim_faces`, the colour-ceiling study's rim), against a
+grid counted by hand."""
 
 import types
 
 import numpy as np
 
-from benchmarks import colour_ceiling
-from gae_jax.model import head
+from gae_jax.model import head, regions
 
 
 def grid_scene(n: int, region_of_cell):
@@ -25,7 +25,7 @@ def test_the_rim_is_the_faces_on_the_regions_outline():
     lips, skin = head.REGION_ID["lips"], head.REGION_ID["skin"]
     # a 4 x 4 block of lips cells inside a 6 x 6 grid of skin
     scene = grid_scene(6, lambda i, j: lips if 1 <= i <= 4 and 1 <= j <= 4 else skin)
-    rim = colour_ceiling.rim_faces(scene, "lips")
+    rim = regions.rim_faces(scene.model.faces, scene.face_regions, "lips")
     cells = rim.reshape(6, 6, 2)
     assert not rim[scene.face_regions == skin].any()
     # the 2 x 2 interior cells have no open edge; of an outline cell, the triangle(s) touching

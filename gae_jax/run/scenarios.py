@@ -1,4 +1,4 @@
-"""Scenes for the claims study (issue 15): a training split in which the mouth stays closed and
+"""Scenes for the claims study: a training split in which the mouth stays closed and
 the eyes open, so that an edit that leaks into the teeth or irises is never corrected in
 training, while the held-out sequences open the jaw and close the eyes.
 

@@ -1,11 +1,12 @@
-"""Oracles (benchmarks only, never a CLI choice): they read the ideal edit.
+"""Oracles, for studies only (`benchmarks/`; never a CLI choice, and nothing else in the
+package imports them): they read the ideal edit.
 
 `OracleEditor`: the ray-cast ideal edit of each sampled view and frame, i.e. a perfect,
 consistent 2D editor.
 
 Fed to the same render-edit-aggregate loop (`edit.edit_avatar(..., editor=OracleEditor(...))`),
 it measures the ceiling of the loop itself: what aggregation reaches when every 2D edit is right.
-It reads the ground truth, which is why it lives here and is named an oracle.
+It reads the ground truth, which is why it is named an oracle.
 
 `recoloured`: an avatar's region recoloured in closed form by the ideal albedo's ratio to the
 unedited one: a perfect colour edit of the avatar's geometry (the colour-only ceiling).
@@ -18,8 +19,7 @@ import numpy as np
 
 from gae_jax import instructions
 from gae_jax.evaluation import truth
-from gae_jax.model import avatar as av
-from gae_jax.model import head
+from gae_jax.model import avatar as av, head
 from gae_jax.scene import synthetic
 
 

@@ -1,4 +1,4 @@
-"""Shared machinery of the edit studies (ablation, pareto, stability).
+"""Many edit variants in one process: the machinery of the studies in `benchmarks/`.
 
 Runs `edit.edit_avatar` + `score.evaluate_avatars` for many `EditConfig`s in one process:
   * jitted steps are reused across configs with the same `StepConfig` (what the step reads), so
@@ -42,13 +42,14 @@ class Bench:
             with open(path) as f:
                 self.results = json.load(f).get("variants", {})
 
-    def session(self, config: EditConfig, scene, original):
-        """An edit session; the step and preview compiled once per StepConfig."""
+    def setup(self, config: EditConfig, scene, original):
+        """(`edit.setup`'s EditSetup, whether its step is new): the step and preview are
+        compiled once per StepConfig."""
         key = StepConfig.of(config)
         fresh = key not in self.steps
-        session = edit.setup(config, scene, original, *self.steps.get(key, (None, None)))
-        self.steps[key] = (session.step, session.preview)
-        return session, fresh
+        setup = edit.setup(config, scene, original, *self.steps.get(key, (None, None)))
+        self.steps[key] = (setup.step, setup.preview)
+        return setup, fresh
 
     def evalset(self, scene, prompt: str):
         key = (scene_fingerprint(scene), prompt)
@@ -67,9 +68,9 @@ class Bench:
         recorded = self.results.get(name)
         if recorded is not None and same_settings(recorded, config, scenes):
             return recorded
-        session, fresh = self.session(config, scene, original)
+        setup, fresh = self.setup(config, scene, original)
         start = time.perf_counter()
-        edited, history = edit.edit_avatar(session, editor=editor)
+        edited, history = edit.edit_avatar(setup, editor=editor)
         seconds = time.perf_counter() - start
         if on_edited is not None:
             on_edited(edited)
@@ -77,14 +78,14 @@ class Bench:
             edited.colors, edited.means, edited.log_scales, edited.opacity_logits)))
         record = dict(config=dataclasses.asdict(config), edit_seconds=round(seconds, 1),
                       compiled_in_this_run=fresh, finite=finite, gaussians=int(edited.num),
-                      tile_capacity=session.rig.tile_capacity, renderer=renderer_settings(),
+                      tile_capacity=setup.rig.tile_capacity, renderer=renderer_settings(),
                       scenes=scenes,
                       final_losses=history[-1] if history else {}, **(extra or {}))
         if evaluate and finite:
             t = time.perf_counter()
             record["evaluation"] = score.evaluate_avatars(
                 self.evalset(eval_scene or scene, config.prompt), edited, original,
-                session.rig.tile_capacity, session.step_config.blend, self.clip_folder)
+                setup.rig.tile_capacity, setup.step_config.blend, self.clip_folder)
             record["evaluation_seconds"] = round(time.perf_counter() - t, 1)
         self.results[name] = _jsonable(record)
         self.save()
@@ -119,7 +120,7 @@ def default_scene_and_avatar(head: str = "procedural"):
     CLI's) and its cached original avatar (the default job's reconstruction)."""
     from gae_jax.edit.config import preset
     from gae_jax.scene import synthetic
-    from gae_jax.train import original_avatar
+    from gae_jax.run.original import original_avatar
 
     scene = synthetic.make_synthetic_scene(size=128, progress=False, head_kind=head)
     return scene, original_avatar(scene, preset("fast").reconstruct_iterations, progress=False)

@@ -1,5 +1,6 @@
 """A plain CPU transcription of the standard tile splatting algorithm (3DGS / gsplat), in torch,
-for timing our renderer against in the same run (`benchmarks/render.py`).
+for timing our renderer against in the same run (`benchmarks/render.py`). Needs torch (the `ip2p`
+extra); nothing else in the package imports this module.
 
 The steps gsplat runs, written directly: EWA projection (perspective Jacobian clamped to 1.3x
 the field of view, 0.1 px^2 dilation as ours), a screen bounding box per Gaussian (the opacity-aware one

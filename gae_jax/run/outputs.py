@@ -19,19 +19,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from gae_jax.edit import region as edit_region
-from gae_jax.edit.edit import Session
+from gae_jax.edit.edit import EditSetup
 from gae_jax.edit.sampler import configured_editor, editor_context
 from gae_jax.evaluation import protocols, truth
-from gae_jax.model import avatar as av
-from gae_jax.model import avatar_io, head
-from gae_jax.scene import motion_io
-from gae_jax.scene import rig as rigs
-from gae_jax.scene.types import interpolated_vertices, posed_vertices, stacked_params
+from gae_jax.model import avatar as av, avatar_io, head
+from gae_jax.render import wabe
+from gae_jax.run import folder
+from gae_jax.scene import motion_io, rig as rigs
+from gae_jax.scene.types import Scene, interpolated_vertices, posed_vertices, stacked_params
 from gae_jax.util.fileio import atomic_write_bytes, encode_png
-
-
-def to_uint8(x) -> np.ndarray:
-    return (np.clip(np.asarray(x, np.float64), 0, 1) * 255 + 0.5).astype(np.uint8)
+from gae_jax.util.image import to_uint8
 
 
 def _label(width: int, text: str, scale: float = 0.33) -> np.ndarray:
@@ -61,9 +58,10 @@ def _zoom_outlined(image: np.ndarray, mask) -> np.ndarray:
     return big
 
 
-def write_grid(session: Session, edited: av.Avatar, path: str, key) -> None:
-    """PNG grid (see the module docstring), with a header naming the columns."""
-    s = session
+def write_grid(setup: EditSetup, edited: av.Avatar, path: str, key) -> None:
+    """PNG grid (see the module docstring) of the edit `setup` made and its result `edited`,
+    with a header naming the columns; the 2D edits are drawn with PRNG `key`."""
+    s = setup
     name = ("self_reenactment" if "self_reenactment" in protocols.available(s.scene)
             else "novel_view" if "novel_view" in protocols.available(s.scene) else None)
     if name is None:
@@ -110,26 +108,26 @@ def write_grid(session: Session, edited: av.Avatar, path: str, key) -> None:
     atomic_write_bytes(path, encode_png(np.concatenate([title, header] + rows, axis=0)))
 
 
-def write_video(session: Session, edited: av.Avatar, path: str, fps: int = 24,
-                per_frame: int = 3) -> None:
+def write_video(scene: Scene, rig: rigs.Rig, blend: wabe.Blend, original: av.Avatar,
+                edited: av.Avatar, path: str, fps: int = 24, per_frame: int = 3) -> None:
     """MP4 from the held-out camera (a training camera when none is held out), 24 fps: the
     held-out and cross-identity sequences (the training ones when the scene has neither), their
     FLAME parameters interpolated `per_frame` steps between captured frames; each frame is
-    ours | the untouched avatar, at the scene's resolution, labelled."""
+    ours | the `original` avatar, rendered on `rig`'s cameras with `blend` at the scene's
+    resolution, labelled."""
     import imageio.v2 as imageio
 
-    s = session
-    cam = (s.scene.held_out_cameras or s.scene.train_cameras)[0]
-    names = (s.scene.sequences_of("self_reenactment") + s.scene.sequences_of("cross_identity")
-             or s.scene.sequences_of("train"))
-    render = rigs.make_view_renderer(s.step_config.blend)
-    width = s.rig.width
+    cam = (scene.held_out_cameras or scene.train_cameras)[0]
+    names = (scene.sequences_of("self_reenactment") + scene.sequences_of("cross_identity")
+             or scene.sequences_of("train"))
+    render = rigs.make_view_renderer(blend)
+    width = rig.width
     header = np.concatenate([_label(width, "ours"), _label(width, "untouched")], axis=1)
     frames = []
     for seq in names:
-        rig = rigs.with_vertices(s.rig, interpolated_vertices(s.scene, seq, per_frame))
-        ours = rigs.render_views(render, edited.trainable(), rig, [cam])[:, 0]
-        before = rigs.render_views(render, s.original.trainable(), rig, [cam])[:, 0]
+        posed = rigs.with_vertices(rig, interpolated_vertices(scene, seq, per_frame))
+        ours = rigs.render_views(render, edited.trainable(), posed, [cam])[:, 0]
+        before = rigs.render_views(render, original.trainable(), posed, [cam])[:, 0]
         frames += [np.concatenate([header, np.concatenate([to_uint8(a), to_uint8(b)], axis=1)])
                    for a, b in zip(ours, before)]
     tmp = path + ".tmp.mp4"
@@ -145,21 +143,19 @@ def write_video(session: Session, edited: av.Avatar, path: str, fps: int = 24,
     os.replace(tmp, path)
 
 
-def write_avatar_files(session: Session, edited: av.Avatar, out_dir: str,
+def write_avatar_files(scene: Scene, original: av.Avatar, edited: av.Avatar, run_dir: str,
                        extra: dict | None = None) -> None:
-    """`edited_avatar/` and `original_avatar/` (GaussianAvatars folders with the held-out or
+    """The run's "edited" and "original" avatars (GaussianAvatars folders with the held-out or
     training motion, the identity's static offset and `extra` flame_param keys: an input
-    avatar's own), `edited_posed.ply` (world space, first frame of that motion) and
-    `motion.npz` (every sequence and identity of the scene, for the viewer)."""
-    s = session
-    names = s.scene.sequences_of("self_reenactment") or s.scene.sequences_of("train")
-    motion = stacked_params(s.scene, names)
-    for folder, avatar in (("edited_avatar", edited), ("original_avatar", s.original)):
-        avatar_io.save_avatar_folder(os.path.join(out_dir, folder), avatar, s.scene.shapes["A"],
-                                     motion, s.scene.static_offsets.get("A"),
-                                     s.scene.model.num_vertices, extra)
-    motion_io.save(os.path.join(out_dir, motion_io.FILE_NAME), s.scene.sequences, s.scene.shapes,
-                   s.scene.static_offsets)
-    verts = posed_vertices(s.scene, [(names[0], 0)])[0]
-    avatar_io.save_posed_ply(av.deform(edited, jnp.asarray(verts), s.scene.model.faces),
-                             os.path.join(out_dir, "edited_posed.ply"))
+    avatar's own), the edited avatar posed in world space at the first frame of that motion,
+    and the motion file (every sequence and identity of the scene, for the viewer)."""
+    names = scene.sequences_of("self_reenactment") or scene.sequences_of("train")
+    motion = stacked_params(scene, names)
+    for which, avatar in (("edited", edited), ("original", original)):
+        folder.write_avatar(run_dir, which, avatar, scene.shapes["A"], motion,
+                            scene.static_offsets.get("A"), scene.model.num_vertices, extra)
+    motion_io.save(folder.path(run_dir, "motion"), scene.sequences, scene.shapes,
+                   scene.static_offsets)
+    verts = posed_vertices(scene, [(names[0], 0)])[0]
+    avatar_io.save_posed_ply(av.deform(edited, jnp.asarray(verts), scene.model.faces),
+                             folder.path(run_dir, "posed"))
