@@ -6,7 +6,8 @@
 
 Variants `makehuman` and `makehuman_it600` fit the MakeHuman head's scene (`--head makehuman`);
 `it600` is the edit's reconstruction (`EditConfig.reconstruct_iterations`); `gsplat_filter` is
-it600 with 3DGS's 0.3 px^2 screen filter instead of ours (`projection.COV2D_DILATION`, 0.1).
+it600 with 3DGS's 0.3 px^2 screen filter instead of ours (`ReconstructConfig.screen_filter`,
+0.1).
 
 For each variant (one process each, run one after another so they share the machine's state):
 fit identity A's avatar on the training split, then score it against the ray-cast ground truth:
@@ -46,7 +47,7 @@ VARIANTS = {
     "it600": dict(iterations=600),
     "makehuman": dict(head="makehuman"),
     "makehuman_it600": dict(head="makehuman", iterations=600),
-    "gsplat_filter": dict(iterations=600, dilation=0.3),
+    "gsplat_filter": dict(iterations=600, screen_filter=0.3),
 }
 REGION_GROUPS = {"whole": None, "lips": ("lips",), "teeth": ("teeth",), "mouth": ("mouth",),
                  "iris": ("iris", "pupil"), "sclera": ("sclera",), "skin": ("skin",)}
@@ -80,8 +81,9 @@ def score_frames(scene):
                                  list(scene.train_cameras[::3]))}
 
 
-def region_scores(avatar, scene) -> dict:
-    """{protocol: {group: PSNR}} of `avatar` against the scene's truth (`score_frames`)."""
+def region_scores(avatar, scene, screen_filter: float) -> dict:
+    """{protocol: {group: PSNR}} of `avatar` rendered with `screen_filter` against the scene's
+    truth (`score_frames`)."""
     import numpy as np
 
     from gae_jax.scene import rig as rigs
@@ -90,7 +92,7 @@ def region_scores(avatar, scene) -> dict:
     out = {}
     for name, (pairs, cameras) in score_frames(scene).items():
         rig = rigs.put_rig(scene, avatar, posed_vertices(scene, pairs, "A"), 0,
-                           capacity_cameras=cameras)
+                           capacity_cameras=cameras, screen_filter=screen_filter)
         images = np.asarray(rigs.render_views(rigs.make_view_renderer(), avatar.trainable(),
                                               rig, cameras))
         truth = np.stack([scene.images[n][cameras, t] for n, t in pairs]) / 255.0
@@ -136,13 +138,9 @@ def run_variant(name: str) -> dict:
     from gae_jax.scene import synthetic
     from gae_jax.scene.types import training_frames
 
-    from gae_jax.render import projection
-
     options = dict(VARIANTS[name])
     size = options.pop("size", 128)
     head_kind = options.pop("head", "procedural")
-    # Read by `project` when the fit traces; this process runs only this variant.
-    projection.COV2D_DILATION = options.pop("dilation", projection.COV2D_DILATION)
     scene = synthetic.make_synthetic_scene(size=size, progress=False, head_kind=head_kind)
     config = ReconstructConfig(**options)
     start = time.perf_counter()
@@ -152,16 +150,18 @@ def run_variant(name: str) -> dict:
     mix = [("mix", t) for t in range(0, scene.sequences["mix"].num_frames, 2)]
     return dict(
         variant=name, size=size, head=head_kind, config=options,
-        cov2d_dilation=projection.COV2D_DILATION, seconds=round(seconds, 1),
+        cov2d_dilation=config.screen_filter, seconds=round(seconds, 1),
         steps_per_second=round(config.iterations / seconds, 2),
         gaussians=int(avatar.num),
         train_psnr_last50=round(sum(h["psnr"] for h in history[-50:]) / 50, 2),
-        held_out_camera_psnr=round(psnr_against_capture(avatar, scene, frames,
-                                                    scene.held_out_cameras), 2),
-        held_out_sequence_psnr=round(psnr_against_capture(avatar, scene, mix,
-                                                      scene.train_cameras[::3]), 2),
+        held_out_camera_psnr=round(psnr_against_capture(
+            avatar, scene, frames, scene.held_out_cameras,
+            screen_filter=config.screen_filter), 2),
+        held_out_sequence_psnr=round(psnr_against_capture(
+            avatar, scene, mix, scene.train_cameras[::3], screen_filter=config.screen_filter), 2),
         overflow_tiles_last=history[-1]["overflow_tiles"],
-        regions=region_scores(avatar, scene) if head_kind == "procedural" else None)
+        regions=region_scores(avatar, scene, config.screen_filter)
+        if head_kind == "procedural" else None)
 
 
 def chart(results, path):

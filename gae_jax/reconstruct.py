@@ -46,6 +46,7 @@ HELP = dict(
     prune_unseen="prune Gaussians that no sampled view saw", max_gaussians="cap (0: none)",
     tile_capacity="per-tile list length (0: sized from the busiest tile)",
     tiles_per_chunk="tiles the compositor walks together (speed only)",
+    screen_filter="px^2 added to each projected covariance (3DGS and gsplat: 0.3)",
     checkpoint_every="steps between atomic checkpoints (0: none)", seed="random seed")
 
 

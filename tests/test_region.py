@@ -14,6 +14,7 @@ from gae_jax.fit.config import ReconstructConfig
 from gae_jax.fit.fit import initial_avatar
 from gae_jax.model import avatar as av
 from gae_jax.model import head
+from gae_jax.render import splat
 from gae_jax.scene import rig as rigs
 from gae_jax.scene import synthetic
 from gae_jax.scene.types import posed_vertices, training_frames
@@ -104,6 +105,23 @@ def test_preview_channels_are_the_bruteforce_composites(small, blend):
     np.testing.assert_array_equal(np.asarray(view.regions), expected)
     plain = rigs.render_bound(avatar.trainable(), rig, 0, 1, blend=wabe.standard()).image
     np.testing.assert_allclose(np.asarray(view.image), np.asarray(plain), atol=1e-5)
+
+
+def test_a_rig_renders_with_the_screen_filter_it_carries(small):
+    """The rig carries the avatar's screen filter (static): every render through it uses it."""
+    scene, avatar, rig = small
+    wide = rigs.put_rig(scene, avatar, posed_vertices(scene, training_frames(scene)[:1]),
+                        tile_capacity=64, screen_filter=0.3)
+    assert rig.screen_filter == 0.1 and wide.screen_filter == 0.3
+    g = rigs.gaussians_at(avatar.trainable(), rig, 0)
+    for r in (rig, wide):
+        through_rig = rigs.render_bound(avatar.trainable(), r, 0, 1).image
+        direct = splat.render(g, r.camera(1), background=r.background, tile_capacity=64,
+                              tiles_per_chunk=rigs.TILES_PER_CHUNK,
+                              screen_filter=r.screen_filter).image
+        np.testing.assert_array_equal(np.asarray(through_rig), np.asarray(direct))
+    assert not np.allclose(np.asarray(rigs.render_bound(avatar.trainable(), rig, 0, 1).image),
+                           np.asarray(rigs.render_bound(avatar.trainable(), wide, 0, 1).image))
 
 
 def test_selection_is_a_mean_vote_above_one_half():

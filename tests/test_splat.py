@@ -140,15 +140,25 @@ def test_zero_quaternion_is_the_identity_with_finite_gradients():
     assert_tree_finite(grads)
 
 
-def test_projection_default_filter_is_the_module_constant_read_at_trace_time(x64, monkeypatch):
+def test_the_screen_filter_adds_to_the_covariance_and_is_a_render_option(x64):
     g, camera = random_scene(12, n=10, dtype=np.float64)
-    monkeypatch.setattr(projection, "COV2D_DILATION", 0.3)
-    wide = projection.project(g.means, g.quats, g.scales, g.opacities, camera)
-    explicit = projection.project(g.means, g.quats, g.scales, g.opacities, camera, dilation=0.3)
-    np.testing.assert_array_equal(np.asarray(wide.conics), np.asarray(explicit.conics))
-    monkeypatch.setattr(projection, "COV2D_DILATION", 0.1)
     sharp = projection.project(g.means, g.quats, g.scales, g.opacities, camera)
-    assert np.all(np.asarray(sharp.conics)[:, 0] > np.asarray(wide.conics)[:, 0])
+    wide = projection.project(g.means, g.quats, g.scales, g.opacities, camera, dilation=0.3)
+
+    def covariance(conics):  # (N, 3) upper triangle of the inverse -> (N, 2, 2) covariance
+        a, b, c = (np.asarray(conics)[:, i] for i in range(3))
+        return np.linalg.inv(np.stack([np.stack([a, b], -1), np.stack([b, c], -1)], -2))
+
+    ok = np.asarray(sharp.visible & wide.visible)
+    np.testing.assert_allclose(covariance(wide.conics)[ok] - covariance(sharp.conics)[ok],
+                               np.broadcast_to(0.2 * np.eye(2), (int(ok.sum()), 2, 2)),
+                               atol=1e-9)
+    assert projection.COV2D_DILATION == 0.1
+    default = splat.render(g, camera, tile_capacity=64).image
+    same = splat.render(g, camera, tile_capacity=64, screen_filter=0.1).image
+    softer = splat.render(g, camera, tile_capacity=64, screen_filter=0.3).image
+    np.testing.assert_array_equal(np.asarray(default), np.asarray(same))
+    assert not np.allclose(np.asarray(default), np.asarray(softer))
 
 
 def _bbox_keep_mask(g, camera, capacity):

@@ -390,3 +390,33 @@ def test_a_region_most_views_hide_is_edited_from_the_views_that_show_it(base):
         b = draw.batch(s.original.trainable(), i, jax.random.PRNGKey(3))
         assert (int(b["cams"][0]), int(b["frames"][0])) in expected
     assert edit.make_sampler(session_for(base, iterations=2)).showing is None
+
+
+def test_one_device_call_draws_the_indices_the_per_call_draws_would():
+    """`sampler.draw` against the draws made one `jax.random` call at a time (the reference):
+    the same cameras, frame rows, neighbour choices and edit keys, in both sampling modes."""
+    key, batch = jax.random.PRNGKey(5), 3
+    cameras = np.array([0, 2, 3, 5, 7])
+    showing = np.array([[2, 4], [3, 9], [5, 1], [7, 7]])
+    choices = np.array([1, 2, 2, 1, 3, 2, 2, 1, 2, 2])
+    for i in (0, 1, 17):
+        for uniform in (True, False):
+            k_sample, k_edit = jax.random.split(jax.random.fold_in(key, i))
+            if uniform:
+                cams = cameras[np.asarray(jax.random.randint(k_sample, (batch,), 0,
+                                                             len(cameras)))]
+                rows = np.asarray(jax.random.randint(jax.random.fold_in(k_sample, 1),
+                                                     (batch,), 0, len(choices)))
+            else:
+                cams, rows = showing[np.asarray(jax.random.randint(k_sample, (batch,), 0,
+                                                                   len(showing)))].T
+            edit_keys = jax.random.split(k_edit, 2 * batch + 1)
+            picks = [int(jax.random.randint(edit_keys[batch + b], (), 0, choices[r]))
+                     for b, r in enumerate(rows)]
+            got = jax.device_get(sampler.draw(key, i, batch, uniform, jnp.asarray(cameras),
+                                              len(choices), jnp.asarray(showing),
+                                              jnp.asarray(choices)))
+            np.testing.assert_array_equal(got[0], cams)
+            np.testing.assert_array_equal(got[1], rows)
+            np.testing.assert_array_equal(got[2], picks)
+            np.testing.assert_array_equal(got[3], np.asarray(edit_keys))

@@ -12,6 +12,8 @@ a resumed run reproduces an uninterrupted one.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -98,6 +100,28 @@ def showing_views(scene, region: tuple, stride: int | None = None) -> np.ndarray
     return np.stack([np.asarray(scene.train_cameras)[cams], rows], -1).astype(np.int64)
 
 
+@functools.partial(jax.jit, static_argnums=(2, 3))
+def draw(key, i, batch: int, uniform: bool, cameras, rows, showing, choices):
+    """Every random index of iteration `i` in one device call: (cams (B,), frame rows (B,),
+    neighbour choices (B,), edit keys (2B + 1, 2)), as `jax.random` draws them from `key`.
+
+    uniform: cameras from `cameras` (C,) and frame rows from `rows` frame rows independently;
+      else a (camera, frame row) pair from `showing` (S, 2).
+    choices: (R,) int32, how many temporal neighbours each frame row has; sample b picks one
+      with edit key B + b.
+    """
+    k_sample, k_edit = jax.random.split(jax.random.fold_in(key, i))
+    if uniform:
+        cams = cameras[jax.random.randint(k_sample, (batch,), 0, cameras.shape[0])]
+        frames = jax.random.randint(jax.random.fold_in(k_sample, 1), (batch,), 0, rows)
+    else:
+        cams, frames = showing[jax.random.randint(k_sample, (batch,), 0, showing.shape[0])].T
+    edit_keys = jax.random.split(k_edit, 2 * batch + 1)
+    neighbour = jax.vmap(lambda k, n: jax.random.randint(k, (), 0, n))(
+        edit_keys[batch:2 * batch], choices[frames])
+    return cams, frames, neighbour, edit_keys
+
+
 class EditSampler:
     """Samples (camera, frame) pairs and produces their 2D edits.
 
@@ -133,6 +157,11 @@ class EditSampler:
         self.showing = (None if self.region in (("none",), ("auto",)) else
                         showing_views(scene, self.region))
         self.label_cache: dict = {}
+        # What `draw` samples from: cameras, (camera, frame row) pairs, neighbour counts.
+        self.draw_tables = (jnp.asarray(scene.train_cameras, jnp.int32),
+                            jnp.asarray(np.zeros((1, 2)) if self.showing is None
+                                        else self.showing, jnp.int32),
+                            jnp.asarray([max(len(n), 1) for n in self.neighbours], jnp.int32))
 
     def editable(self) -> np.ndarray:
         """(N,) bool: the Gaussians the edit may move now."""
@@ -191,16 +220,9 @@ class EditSampler:
     def batch(self, params, i: int, key) -> dict:
         """The i-th batch as host arrays: samples, fresh edits (or in2n's dataset), neighbours."""
         c = self.config
-        k_sample, k_edit = jax.random.split(jax.random.fold_in(key, i))
-        if self.showing is None:
-            cams = np.asarray(self.scene.train_cameras)[np.asarray(jax.random.randint(
-                k_sample, (c.batch,), 0, len(self.scene.train_cameras)))]
-            rows = np.asarray(jax.random.randint(jax.random.fold_in(k_sample, 1), (c.batch,), 0,
-                                                 len(self.pairs)))
-        else:
-            cams, rows = self.showing[np.asarray(jax.random.randint(
-                k_sample, (c.batch,), 0, len(self.showing)))].T
-        edit_keys = jax.random.split(k_edit, 2 * c.batch + 1)
+        cams, rows, choice, edit_keys = jax.device_get(draw(
+            key, i, c.batch, self.showing is None, self.draw_tables[0], len(self.pairs),
+            *self.draw_tables[1:]))
         targets, neighbours = [], []
         if c.dataset_update:  # IN2N: refresh one dataset image per iteration, in order
             spot = self.spots[i % len(self.spots)]
@@ -210,8 +232,7 @@ class EditSampler:
                 target = self.dataset.get((cam, row), self.original_image(cam, row))
             else:
                 target = self.edit(params, cam, row, edit_keys[b])
-            options = self.neighbours[row] or [row]
-            k_row = options[int(jax.random.randint(edit_keys[c.batch + b], (), 0, len(options)))]
+            k_row = (self.neighbours[row] or [row])[int(choice[b])]
             neighbour = self.cache.get((cam, k_row))
             if neighbour is None and c.adversarial:
                 neighbour = self.edit(params, cam, k_row, jax.random.fold_in(edit_keys[b], 7))

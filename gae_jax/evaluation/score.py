@@ -14,6 +14,7 @@ from gae_jax.evaluation import clip_score, metrics
 from gae_jax.evaluation.truth import EvalSet
 from gae_jax.model.avatar import Avatar
 from gae_jax.render import losses, wabe
+from gae_jax.render.projection import COV2D_DILATION
 from gae_jax.scene import rig as rigs
 from gae_jax.scene.types import Scene, posed_vertices
 
@@ -81,12 +82,13 @@ def evaluate_avatars(evalset: EvalSet, edited: Avatar, original: Avatar, tile_ca
 
 def psnr_against_capture(avatar: Avatar, scene: Scene, pairs, cameras,
                          identity: str = "A", tile_capacity: int = 0,
-                         blend: wabe.Blend = wabe.standard()) -> float:
-    """Mean PSNR (over views) of `avatar` rendered with `blend` against the scene's
-    ground-truth images at cameras x (sequence, frame) pairs, posed with `identity`'s shape and
-    motion."""
+                         blend: wabe.Blend = wabe.standard(),
+                         screen_filter: float = COV2D_DILATION) -> float:
+    """Mean PSNR (over views) of `avatar` rendered with `blend` and `screen_filter` against the
+    scene's ground-truth images at cameras x (sequence, frame) pairs, posed with `identity`'s
+    shape and motion."""
     rig = rigs.put_rig(scene, avatar, posed_vertices(scene, pairs, identity), tile_capacity,
-                       capacity_cameras=cameras)
+                       capacity_cameras=cameras, screen_filter=screen_filter)
     images = rigs.render_views(rigs.make_view_renderer(blend), avatar.trainable(), rig, cameras)
     values = [float(losses.psnr(images[j, k], scene.images[n][c, t].astype(np.float32) / 255.0))
               for j, (n, t) in enumerate(pairs) for k, c in enumerate(cameras)]

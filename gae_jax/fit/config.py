@@ -7,6 +7,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Optional
 
+from gae_jax.render.projection import COV2D_DILATION
+
 @dataclasses.dataclass(frozen=True)
 class ReconstructConfig:
     """Settings of `fit` (learning rates in GaussianAvatars' triangle-local units).
@@ -45,6 +47,7 @@ class ReconstructConfig:
     max_gaussians: int = 0
     tile_capacity: int = 0
     tiles_per_chunk: int = 8
+    screen_filter: float = COV2D_DILATION
     checkpoint_every: int = 0
     seed: int = 0
 
@@ -57,6 +60,9 @@ class ReconstructConfig:
             raise ValueError(f"sh_degree must be None or 0..3, got {self.sh_degree}")
         if min(self.densify_every, self.checkpoint_every, self.max_gaussians) < 0:
             raise ValueError("densify_every, checkpoint_every and max_gaussians must be >= 0")
+        if not self.screen_filter >= 0:
+            raise ValueError(f"screen_filter is px^2 added to a covariance, >= 0; got "
+                             f"{self.screen_filter}")
         if not 0 <= self.densify_until <= 1:
             raise ValueError(f"densify_until is a fraction of the iterations, got "
                              f"{self.densify_until}")

@@ -98,7 +98,8 @@ def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
                              "needs sh_degree None, SH coefficients an integer degree)")
         state = initial_state(fixed.trainable(), step_config, key)
     # Sized once from the initial avatar and kept through resumes (same shapes, same numerics).
-    rig = rigs.put_rig(scene, fixed, vertices, tile_capacity=capacity)
+    rig = rigs.put_rig(scene, fixed, vertices, tile_capacity=capacity,
+                       screen_filter=config.screen_filter)
     capacity = rig.tile_capacity
     step = make_fit_step(step_config)
     recorder = loop.Recorder("reconstruct", config.iterations, int(state.step), history,

@@ -106,13 +106,11 @@ def screen_covariance(quats: jax.Array, scales: jax.Array, rotation: jax.Array,
 
 def project(means: jax.Array, quats: jax.Array, scales: jax.Array, opacities: jax.Array,
             camera: Camera, *, near: float = NEAR_PLANE,
-            dilation: float | None = None) -> Projected:
+            dilation: float = COV2D_DILATION) -> Projected:
     """Projects (N, 3) world means with (N, 4) quats, (N, 3) scales, (N,) opacities.
 
-    dilation: px^2 added to the 2D covariance; None reads `COV2D_DILATION` at trace time.
+    dilation: px^2 added to the 2D covariance (the screen filter).
     """
-    if dilation is None:
-        dilation = COV2D_DILATION
     fx, fy, cx, cy = (camera.intrinsics[i] for i in range(4))
     rotation, translation = camera.rotation, camera.translation
     x, y, z = (sum(rotation[r, k] * means[:, k] for k in range(3)) + translation[r]

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 from gae_jax.render import composite as comp
 from gae_jax.render import sh, wabe
 from gae_jax.render.camera import Camera
-from gae_jax.render.projection import project
+from gae_jax.render.projection import COV2D_DILATION, project
 from gae_jax.render.tiles import bin_gaussians
 
 DEFAULT_ALPHA_CLAMP = 0.99
@@ -129,7 +129,8 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
            screen_offset: jax.Array | None = None, unroll: int = 8, unroll_backward: int = 8,
            tiles_per_chunk: int = 32,
            visibility_contributors: int = 0,
-           visibility_beta: float = wabe.PAPER_BETA, kernel: str = "auto") -> RenderOutput:
+           visibility_beta: float = wabe.PAPER_BETA, kernel: str = "auto",
+           screen_filter: float = COV2D_DILATION) -> RenderOutput:
     """Renders Gaussians into camera.height x camera.width.
 
     Args:
@@ -150,13 +151,15 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
       visibility_beta: beta of the visibility statistic.
       kernel: "auto" (the C++ compositor for float32 and the C++ depth sort on CPU when built,
         see `cpu_kernel`) or "jax" (always the pure-JAX compositor and `lax.sort`).
+      screen_filter: px^2 added to each 2D covariance (`projection.COV2D_DILATION`; 3DGS and
+        gsplat use 0.3).
     """
     check_gaussians(gaussians)
     if not 0.0 < alpha_clamp < 1.0:
         raise ValueError(f"alpha_clamp must be in (0, 1), got {alpha_clamp}")
     dtype = gaussians.means.dtype
     proj = project(gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities,
-                   camera)
+                   camera, dilation=screen_filter)
     means2d = proj.means2d if screen_offset is None else proj.means2d + screen_offset
     colors = colors_towards(gaussians, camera).astype(dtype)
     num_channels = colors.shape[-1]
@@ -197,11 +200,12 @@ def render(gaussians: Gaussians, camera: Camera, *, background=None,
     return RenderOutput(image=image, alpha=alpha, depth=depth, stats=stats)
 
 
-def tile_load(gaussians: Gaussians, camera: Camera) -> jax.Array:
+def tile_load(gaussians: Gaussians, camera: Camera,
+              screen_filter: float = COV2D_DILATION) -> jax.Array:
     """() int32: the most Gaussians touching any one tile, i.e. the `tile_capacity` at which
-    this view renders without overflow."""
+    this view renders without overflow (with `render`'s `screen_filter`)."""
     proj = project(gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities,
-                   camera)
+                   camera, dilation=screen_filter)
     bins = bin_gaussians(proj.means2d, proj.extents, proj.depths, proj.visible, camera.width,
                          camera.height, 1, None)
     return jnp.max(bins.counts)

@@ -11,16 +11,16 @@ import sys
 from gae_jax.fit.config import ReconstructConfig
 from gae_jax.fit.fit import RECONSTRUCTION_VERSION, fit
 from gae_jax.model import avatar_io
-from gae_jax.render import projection
 from gae_jax.scene.synthetic import scene_fingerprint
 from gae_jax.util.fileio import PlyError, cache_root
 
 
 def cache_path(scene, config: ReconstructConfig) -> str:
     """Where the reconstruction of `scene` with `config` is cached: the key covers the scene's
-    ground truth, every reconstruction setting and the renderer's screen filter."""
-    key = dict(dataclasses.asdict(config), cov2d_dilation=projection.COV2D_DILATION,
-               version=RECONSTRUCTION_VERSION)
+    ground truth and every reconstruction setting (the screen filter under the name the cache
+    has always used)."""
+    key = dataclasses.asdict(config)
+    key = dict(key, cov2d_dilation=key.pop("screen_filter"), version=RECONSTRUCTION_VERSION)
     settings = hashlib.sha256(json.dumps(key, sort_keys=True).encode())
     return os.path.join(cache_root(), f"avatar-{scene_fingerprint(scene)}-"
                                       f"{settings.hexdigest()[:12]}.ply")

@@ -21,6 +21,7 @@ import numpy as np
 from gae_jax.model import avatar as av
 from gae_jax.render import splat, wabe
 from gae_jax.render.camera import Camera
+from gae_jax.render.projection import COV2D_DILATION
 from gae_jax.util.compile import fast_jit
 
 TILES_PER_CHUNK = 8  # tiles the compositor walks together; 8 measured fastest at 128 px
@@ -38,6 +39,8 @@ class Rig:
       intrinsics: (C, 4) fx, fy, cx, cy; w2c: (C, 4, 4) world-to-camera, OpenCV axes.
       background: (3,) colour.
       width, height, tile_capacity: static.
+      screen_filter: static, px^2 added to each 2D covariance (`splat.render`'s; the avatar
+        renders as it was fitted).
     """
 
     faces: jax.Array
@@ -50,6 +53,7 @@ class Rig:
     width: int = dataclasses.field(metadata=dict(static=True))
     height: int = dataclasses.field(metadata=dict(static=True))
     tile_capacity: int = dataclasses.field(metadata=dict(static=True))
+    screen_filter: float = dataclasses.field(default=COV2D_DILATION, metadata=dict(static=True))
 
     def camera(self, cam) -> Camera:
         """Camera `cam` (a traced or Python int) of the rig."""
@@ -58,7 +62,7 @@ class Rig:
 
 
 def make_rig(faces, avatar: av.Avatar, vertices, intrinsics, w2c, background, width: int,
-             height: int, tile_capacity: int) -> Rig:
+             height: int, tile_capacity: int, screen_filter: float = COV2D_DILATION) -> Rig:
     """The one place rendering data enters the device: host arrays -> a `Rig` pytree."""
     return Rig(faces=jnp.asarray(faces, jnp.int32), binding=jnp.asarray(avatar.binding, jnp.int32),
                regions=jnp.asarray(avatar.regions, jnp.int32),
@@ -66,18 +70,19 @@ def make_rig(faces, avatar: av.Avatar, vertices, intrinsics, w2c, background, wi
                intrinsics=jnp.asarray(intrinsics, jnp.float32),
                w2c=jnp.asarray(w2c, jnp.float32),
                background=jnp.asarray(background, jnp.float32), width=int(width),
-               height=int(height), tile_capacity=max(int(tile_capacity), 1))
+               height=int(height), tile_capacity=max(int(tile_capacity), 1),
+               screen_filter=float(screen_filter))
 
 
 def put_rig(scene, avatar: av.Avatar, vertices, tile_capacity: int = 0,
-            capacity_cameras=None) -> Rig:
+            capacity_cameras=None, screen_filter: float = COV2D_DILATION) -> Rig:
     """The rig of `avatar` (its binding and regions) in `scene` with (T, V, 3) posed `vertices`.
 
     `tile_capacity` 0 sizes it with `required_capacity` over `capacity_cameras` (default: the
     scene's training cameras) at the first frame.
     """
     rig = make_rig(scene.model.faces, avatar, vertices, scene.intrinsics, scene.w2c,
-                   scene.background, scene.width, scene.height, tile_capacity)
+                   scene.background, scene.width, scene.height, tile_capacity, screen_filter)
     if tile_capacity:
         return rig
     cams = scene.train_cameras if capacity_cameras is None else capacity_cameras
@@ -122,6 +127,7 @@ def render_bound(params: dict, rig: Rig, frame, cam, *, blend: wabe.Blend = wabe
         background = jnp.concatenate([background, jnp.zeros(extra_channels.shape[-1],
                                                              background.dtype)])
     render_options.setdefault("tiles_per_chunk", TILES_PER_CHUNK)
+    render_options.setdefault("screen_filter", rig.screen_filter)
     return splat.render(g, camera, background=background, blend=blend,
                         tile_capacity=rig.tile_capacity, **render_options)
 
@@ -129,7 +135,8 @@ def render_bound(params: dict, rig: Rig, frame, cam, *, blend: wabe.Blend = wabe
 def required_capacity(params: dict, rig: Rig, cameras, frame: int = 0) -> int:
     """1.25x the busiest tile of the avatar over the given cameras at one frame, rounded up to
     128 (a 25 % margin for the motion and the edit's changes)."""
-    load = jax.jit(lambda p, r, cam: splat.tile_load(gaussians_at(p, r, frame), r.camera(cam)))
+    load = jax.jit(lambda p, r, cam: splat.tile_load(gaussians_at(p, r, frame), r.camera(cam),
+                                                     r.screen_filter))
     worst = max(int(load(params, rig, jnp.int32(c))) for c in cameras)
     return int(128 * math.ceil(1.25 * worst / 128))
 
