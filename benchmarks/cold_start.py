@@ -26,6 +26,7 @@ import sys
 import tempfile
 import time
 
+from gae_jax.run.bench import machine
 from gae_jax.util.fileio import atomic_write_bytes
 
 COMPILED = re.compile(r"Finished XLA compilation of (.+?) in ([0-9.e+-]+) sec")
@@ -63,7 +64,7 @@ def main(argv=None) -> dict:
     results = {}
     for head in args.head:
         cache = tempfile.mkdtemp(prefix=f"cold-start-{head}-")
-        results[head] = {}
+        results[head] = {"machine": machine()}
         for name, compile_cache in (("cold", True), ("warm", True),
                                     ("warm_no_compile_cache", False)):
             results[head][name] = run_job(cache, head, compile_cache)

@@ -94,8 +94,26 @@ class Bench:
         return self.results[name]
 
     def save(self, **meta):
-        blob = dict(meta, variants=self.results)
+        blob = dict(meta, machine=machine(), variants=self.results)
         atomic_write_bytes(self.path, json.dumps(blob, indent=1).encode())
+
+
+def machine() -> dict:
+    """Where and when a record was made: UTC date, CPU model, cores, JAX version and backend."""
+    import platform
+    import time
+
+    import jax
+
+    cpu = platform.processor()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f
+                        if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    return dict(date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), cpu=cpu,
+                cores=os.cpu_count(), jax=jax.__version__, backend=jax.default_backend())
 
 
 def renderer_settings() -> dict:

@@ -31,10 +31,19 @@ from gae_jax.util.fileio import atomic_write_bytes, encode_png
 from gae_jax.util.image import to_uint8
 
 
-def _label(width: int, text: str, scale: float = 0.33) -> np.ndarray:
+GRID_TEXT = 0.45  # the grid's title and header text scale
+GRID_COLUMNS = ("untouched", "2D edit (target)", "ours")  # and the truth's column
+
+
+def _label_height(scale: float) -> int:
+    return int(round(42 * scale))
+
+
+def label(width: int, text: str, scale: float = 0.33) -> np.ndarray:
+    """(h, width, 3) uint8 white strip with `text` in black (h from the text scale)."""
     import cv2
 
-    height = int(round(42 * scale))
+    height = _label_height(scale)
     strip = np.full((height, width, 3), 255, np.uint8)
     cv2.putText(strip, text, (3, int(height * 0.72)), cv2.FONT_HERSHEY_SIMPLEX, scale,
                 (0, 0, 0), 1, cv2.LINE_AA)
@@ -101,10 +110,10 @@ def write_grid(setup: EditSetup, edited: av.Avatar, path: str, key) -> None:
             rows.append(np.concatenate(cells, axis=1))
     width = rows[0].shape[1] // 4
     kind = "ideal edit" if s.scene.kind == "synthetic" else "capture"
-    header = np.concatenate([_label(width, t, 0.45)
-                             for t in ("untouched", "2D edit (target)", "ours", kind)], axis=1)
+    header = np.concatenate([label(width, t, GRID_TEXT) for t in GRID_COLUMNS + (kind,)],
+                            axis=1)
     where = "every Gaussian" if region == ("none",) else ", ".join(region)
-    title = _label(rows[0].shape[1], f'"{s.config.prompt}"   region: {where}', 0.45)
+    title = label(rows[0].shape[1], f'"{s.config.prompt}"   region: {where}', GRID_TEXT)
     atomic_write_bytes(path, encode_png(np.concatenate([title, header] + rows, axis=0)))
 
 
@@ -122,7 +131,7 @@ def write_video(scene: Scene, rig: rigs.Rig, blend: wabe.Blend, original: av.Ava
              or scene.sequences_of("train"))
     render = rigs.make_view_renderer(blend)
     width = rig.width
-    header = np.concatenate([_label(width, "ours"), _label(width, "untouched")], axis=1)
+    header = np.concatenate([label(width, "ours"), label(width, "untouched")], axis=1)
     frames = []
     for seq in names:
         posed = rigs.with_vertices(rig, interpolated_vertices(scene, seq, per_frame))
@@ -159,3 +168,11 @@ def write_avatar_files(scene: Scene, original: av.Avatar, edited: av.Avatar, run
     verts = posed_vertices(scene, [(names[0], 0)])[0]
     avatar_io.save_posed_ply(av.deform(edited, jnp.asarray(verts), scene.model.faces),
                              folder.path(run_dir, "posed"))
+
+
+def grid_cells(grid: np.ndarray) -> np.ndarray:
+    """(rows, columns, 2H, 2W, 3) cells of a `write_grid` image (its title and header cut)."""
+    body = grid[2 * _label_height(GRID_TEXT):]
+    columns = len(GRID_COLUMNS) + 1
+    size = body.shape[1] // columns
+    return body.reshape(body.shape[0] // size, size, columns, size, 3).transpose(0, 2, 1, 3, 4)
