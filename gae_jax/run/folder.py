@@ -10,6 +10,7 @@ A run folder of `python -m gae_jax.train` holds:
   evaluation.json, evaluation.md     written by `python -m gae_jax.evaluate`
   edit_checkpoint.npz     while a run is unfinished (or kept)
   screenshots/            the viewer's
+  job.json                a batch job's settings (`python -m gae_jax.batch`)
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ POSED = "edited_posed.ply"
 GRID = "grid.png"
 VIDEO = "reenactment.mp4"
 SCREENSHOTS = "screenshots"
+JOB = "job.json"
 AVATAR_FILE = "point_cloud.ply"
 
 
@@ -42,6 +44,7 @@ def path(run_dir: str, name: str) -> str:
     """The path of the run's `name`: "metrics", "grid", "video", "posed", "evaluation_set",
     "motion", "checkpoint", "screenshots", or an avatar folder ("original", "edited")."""
     names = dict(metrics=METRICS, grid=GRID, video=VIDEO, posed=POSED, screenshots=SCREENSHOTS,
+                 job=JOB,
                  evaluation_set=truth.FILE_NAME, motion=motion_io.FILE_NAME,
                  checkpoint=CHECKPOINT, **AVATARS)
     if name not in names:
@@ -51,6 +54,23 @@ def path(run_dir: str, name: str) -> str:
 
 def write_metrics(run_dir: str, metrics: dict) -> None:
     atomic_write_bytes(path(run_dir, "metrics"), json.dumps(metrics, indent=1).encode())
+
+
+def write_job(run_dir: str, description: dict) -> None:
+    """The settings of the batch job this folder is the run of."""
+    atomic_write_bytes(path(run_dir, "job"), json.dumps(description, indent=1).encode())
+
+
+def read_job(run_dir: str) -> dict | None:
+    """What `write_job` wrote into `run_dir`, or None; ValueError naming an unreadable file."""
+    job_path = path(run_dir, "job")
+    if not os.path.isfile(job_path):
+        return None
+    try:
+        with open(job_path) as f:
+            return json.load(f)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{job_path}: unreadable ({e})") from None
 
 
 def write_evaluation(run_dir: str, results: dict, table: str) -> None:

@@ -17,12 +17,13 @@ from tqdm import tqdm
 
 from gae_jax import instructions
 from gae_jax.edit import edit
-from gae_jax.edit.config import EditConfig
+from gae_jax.edit.config import EditConfig, StepConfig
 from gae_jax.edit.editors import make_editor
 from gae_jax.evaluation import clip_score, score, truth
 from gae_jax.run import folder, outputs
 from gae_jax.run.original import original_avatar
 from gae_jax.scene.load import SceneConfig, load_scene
+from gae_jax.scene.synthetic import scene_fingerprint
 
 GRID_KEY = 99  # the PRNG seed of the grid's 2D edits
 
@@ -44,13 +45,16 @@ def run(config: EditConfig, workdir: str, scene=None, original=None, resume: boo
         progress: bool = True, video: bool = True,
         progress_fn: Optional[Callable[[int, dict], None]] = None,
         scene_config: SceneConfig = SceneConfig(), timings: Optional[dict] = None,
-        keep_checkpoint: bool = False, avatar_extra: Optional[dict] = None) -> dict:
+        keep_checkpoint: bool = False, avatar_extra: Optional[dict] = None,
+        shared: Optional[dict] = None) -> dict:
     """The whole job into the run folder `workdir`; returns the metrics written there.
 
     `scene` and `original` default to `load_scene(scene_config)` and its cached
     reconstruction; `timings` holds what the caller already spent (the CLI's loading);
     `avatar_extra`: flame_param keys of an input avatar the written avatars carry on. A
-    finished run removes its checkpoint unless `keep_checkpoint`."""
+    finished run removes its checkpoint unless `keep_checkpoint`. `shared` is what a caller
+    running many jobs in one process keeps between them (filled here): the compiled step and
+    preview of each StepConfig and the evaluation set of each (scene, prompt)."""
     os.makedirs(workdir, exist_ok=True)
     timings = dict(timings or {})
     t0 = time.perf_counter()
@@ -60,7 +64,10 @@ def run(config: EditConfig, workdir: str, scene=None, original=None, resume: boo
         scene_config = dataclasses.replace(scene_config, head=scene.head)
     if original is None:
         original = original_avatar(scene, config.reconstruct_iterations, progress)
-    setup = edit.setup(config, scene, original)
+    programs = {} if shared is None else shared.setdefault("programs", {})
+    step_config = StepConfig.of(config)
+    setup = edit.setup(config, scene, original, *programs.get(step_config, (None, None)))
+    programs[step_config] = (setup.step, setup.preview)
     timings["setup_s"] = round(time.perf_counter() - t0, 1)
     t1 = time.perf_counter()
     edited, history = edit.edit_avatar(setup, workdir, resume=resume, progress=progress,
@@ -80,7 +87,7 @@ def run(config: EditConfig, workdir: str, scene=None, original=None, resume: boo
                             folder.path(workdir, "video"))
     bar.update(1)
     bar.set_description("evaluation")
-    evalset = truth.build(scene, config.prompt)
+    evalset = _evaluation_set(scene, config.prompt, shared)
     truth.save(evalset, folder.path(workdir, "evaluation_set"))
     scores = score.evaluate_avatars(evalset, edited, original, setup.rig.tile_capacity,
                                     setup.step_config.blend, config.clip_folder)
@@ -94,3 +101,14 @@ def run(config: EditConfig, workdir: str, scene=None, original=None, resume: boo
                    tile_capacity=setup.rig.tile_capacity)
     folder.write_metrics(workdir, metrics)
     return metrics
+
+
+def _evaluation_set(scene, prompt: str, shared: Optional[dict]):
+    """`truth.build(scene, prompt)`, kept in `shared` (when given) for the next job."""
+    if shared is None:
+        return truth.build(scene, prompt)
+    key = (scene_fingerprint(scene), prompt)
+    evalsets = shared.setdefault("evalsets", {})
+    if key not in evalsets:
+        evalsets[key] = truth.build(scene, prompt)
+    return evalsets[key]
