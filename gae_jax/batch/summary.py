@@ -59,7 +59,9 @@ def chart(rows: list) -> bytes:
     ax.set_xticks(list(x), [r["name"] for r in rows], rotation=60, ha="right", fontsize=8)
     ax.set_ylabel("edited region, PSNR dB\n(mean of the 3 protocols)")
     ax.set_title("batch: every job's edited region against the ideal")
-    ax.legend(fontsize=8)
+    top = max(max(r["edited"], r["untouched"] or 0) for r in rows)
+    ax.set_ylim(0, 1.2 * top)  # room for the legend above the bars
+    ax.legend(fontsize=8, ncol=2, loc="upper center")
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     buffer = io.BytesIO()
