@@ -96,3 +96,22 @@ def test_a_pixels_ratio_is_kept_where_it_is_plausible_light_and_the_fit_elsewher
     np.testing.assert_allclose(shade[:, 5:], 0.5)
     np.testing.assert_allclose(scaled, light)
     assert is_uniform == 0.0
+
+
+def test_a_thin_region_is_uniform_whatever_its_mixed_pixels_say():
+    """A thin ring (an iris at 128 px) whose outline pixels mix with a dark pupil and a white
+    sclera: implausible ratios on 60 % of its pixels. Judged by them it would be textured and
+    take the head's fitted light (20 % too bright here); as a thin region its light is
+    rescaled to its own plausible ratios (the median), and those ratios are kept."""
+    light = np.full((10, 10), 0.5, np.float32)
+    ring = np.full((10, 10), 0.4, np.float32)
+    ring[:, :3] = 0.05  # mixed with the pupil
+    ring[:, 3:6] = 4.0  # mixed with the sclera
+    region = np.ones((10, 10), bool)
+    _, scaled, is_uniform = shading.trust_ratio(ring, light, (0.3, 1.0), region)
+    assert is_uniform == 0.0
+    np.testing.assert_allclose(scaled, light)
+    shade, scaled, is_uniform = shading.trust_ratio(ring, light, (0.3, 1.0), region, thin=True)
+    assert is_uniform == 1.0
+    np.testing.assert_allclose(scaled, 0.4, rtol=1e-5)
+    np.testing.assert_allclose(shade[:, 6:], 0.4, rtol=1e-5)

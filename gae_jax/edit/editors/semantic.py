@@ -181,9 +181,8 @@ class SemanticEditor:
             fitted = shading_map(source, normals, inner & (known > 0), known)
             if fitted is not None:
                 own = regions == head.REGION_ID.get(region, -2)
-                if (own & inner).sum() >= THIN:  # else a thin region: all its pixels
-                    own &= inner
-                return trust_ratio(ratio, *fitted, own)
+                thin = (own & inner).sum() < THIN  # then judged on all its pixels
+                return trust_ratio(ratio, *fitted, own if thin else own & inner, thin)
         ratio = (source @ LUMA) / luminance.get(region, max(float(LUMA.sum()), 1e-3))
         return ratio, ratio, 1.0
 

@@ -76,7 +76,7 @@ def shading_map(image: np.ndarray, normals: np.ndarray, fit_mask: np.ndarray,
 
 
 def trust_ratio(ratio: np.ndarray, light: np.ndarray, plausible: tuple,
-                region: np.ndarray) -> tuple:
+                region: np.ndarray, thin: bool = False) -> tuple:
     """((H, W) shading, (H, W) light, uniformity in [0, 1]) of a region: the shading is the
     pixel's own luminance ratio to the region's albedo
     (`ratio`, exact where the albedo is what the editor assumes) where it agrees with the
@@ -92,7 +92,11 @@ def trust_ratio(ratio: np.ndarray, light: np.ndarray, plausible: tuple,
     textured one it is taken as fitted. A pixel then keeps its ratio within a factor
     exp(AGREE) of that light and takes the light beyond exp(DISAGREE) (linear blends in the log
     gap and in the fraction between). The light returned is that light (rescaled or not), the
-    uniformity 1 for a uniform region, 0 for a textured one."""
+    uniformity 1 for a uniform region, 0 for a textured one.
+
+    A `thin` region (an iris at 128 px: nearly every pixel on its outline) is taken as uniform:
+    its implausible ratios are pixels mixed with the neighbours (the pupil, the sclera), not
+    texture, and the light fitted to the head misses its own (an eye socket's)."""
     low, high = plausible
     r = np.maximum(ratio, 1e-6)
     outside = np.maximum(np.log(low / r), np.log(r / high)).clip(min=0.0)
@@ -102,7 +106,8 @@ def trust_ratio(ratio: np.ndarray, light: np.ndarray, plausible: tuple,
     inside = region & (plausible_w >= 0.5)
     if region.any():
         textured = float(np.mean(plausible_w[region] < 0.5))
-        uniform = float(np.clip((TEXTURED - textured) / (TEXTURED - UNIFORM), 0.0, 1.0))
+        uniform = 1.0 if thin else float(
+            np.clip((TEXTURED - textured) / (TEXTURED - UNIFORM), 0.0, 1.0))
         if inside.any():
             scale = uniform * float(np.median(log_gap[inside]))
     agree_w = np.clip((DISAGREE - np.abs(log_gap - scale)) / (DISAGREE - AGREE), 0.0, 1.0)
