@@ -22,7 +22,6 @@ import itertools
 import os
 import re
 import tomllib
-import typing
 
 from gae_jax.edit import config as edit_config
 from gae_jax.edit.config import EditConfig
@@ -115,9 +114,9 @@ def _job(values: dict, label: str, name: str, base: str) -> Job:
     for key, value in values.items():
         field = scene_fields.get(key) or edit_fields.get(key)
         expected = str if key in ("name", "preset", "avatar") else bool if key == "video" else (
-            field.type if field is not None else None)
+            TYPES[field.type])
         if not _type_ok(value, expected):
-            raise ManifestError(f"{where}: {key}: {value!r} is not {_type_name(expected)}")
+            raise ManifestError(f"{where}: {key}: {value!r} is not {TYPE_NAMES[expected]}")
     for key in FOLDER_FIELDS + FILE_FIELDS:
         if values.get(key):
             values[key] = os.path.join(base, values[key])
@@ -137,35 +136,18 @@ def _job(values: dict, label: str, name: str, base: str) -> Job:
     return Job(name, scene, config, values.get("avatar", ""), values.get("video", True))
 
 
+TYPES = {"int": int, "float": float, "str": str, "bool": bool}  # the config fields' types
+TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false"}
+
+
 def _type_ok(value, expected) -> bool:
-    expected = _resolve(expected)
-    if expected is None:
-        return True
     if expected is bool:
         return isinstance(value, bool)
     if expected is float:
         return isinstance(value, (int, float)) and not isinstance(value, bool)
     if expected is int:
         return isinstance(value, int) and not isinstance(value, bool)
-    if typing.get_origin(expected) is typing.Union:
-        return any(_type_ok(value, a) for a in typing.get_args(expected) if a is not type(None))
     return isinstance(value, expected)
-
-
-def _resolve(expected):
-    if isinstance(expected, str):  # `from __future__ import annotations`: names
-        names = {"int": int, "float": float, "str": str, "bool": bool}
-        if expected in names:
-            return names[expected]
-        match = re.fullmatch(r"Optional\[(\w+)\]", expected)
-        return typing.Optional[names[match.group(1)]] if match else None
-    return expected
-
-
-def _type_name(expected) -> str:
-    expected = _resolve(expected)
-    return {int: "an integer", float: "a number", str: "a string", bool: "true or false"}.get(
-        expected, str(expected))
 
 
 def _slug(text: str) -> str:

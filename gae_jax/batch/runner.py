@@ -13,12 +13,13 @@ import os
 import time
 
 from gae_jax.batch.manifest import Job
+from gae_jax.edit.config import preset
 from gae_jax.evaluation import protocols
 from gae_jax.model import avatar_io
 from gae_jax.run import folder
 from gae_jax.run import job as run_job
 from gae_jax.run.original import original_avatar
-from gae_jax.scene.load import load_scene
+from gae_jax.scene.load import SceneConfig, load_scene
 
 
 def status(run_dir: str) -> str:
@@ -102,9 +103,6 @@ def record(job: Job, run_dir: str, state: str, metrics: dict) -> dict:
 
 def _differences(job: Job) -> dict:
     """The job's settings that differ from the CLI's defaults (what sets it apart)."""
-    from gae_jax.edit.config import preset
-    from gae_jax.scene.load import SceneConfig
-
     out = {k: v for k, v in dataclasses.asdict(job.scene).items()
            if v != getattr(SceneConfig(), k)}
     out.update({k: v for k, v in dataclasses.asdict(job.config).items()

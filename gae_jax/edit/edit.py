@@ -50,10 +50,11 @@ class EditSetup:
     preview: Callable
 
 
-def setup(config: EditConfig, scene: Scene, original: av.Avatar, step=None,
-          preview=None) -> EditSetup:
-    """Device data and jitted functions of an edit (pass `step` / `preview` to reuse compiled
-    ones of the same StepConfig)."""
+def setup(config: EditConfig, scene: Scene, original: av.Avatar,
+          programs: Optional[dict] = None) -> EditSetup:
+    """Device data and jitted functions of an edit. `programs` ({StepConfig: (step, preview)})
+    keeps the compiled functions between edits in one process: they are taken from it when
+    there and added to it when new."""
     pairs = tuple(training_frames(scene))
     rig = rigs.put_rig(scene, original, posed_vertices(scene, pairs))
     step_config = StepConfig.of(config)
@@ -61,8 +62,11 @@ def setup(config: EditConfig, scene: Scene, original: av.Avatar, step=None,
     canonical = jnp.concatenate([
         av.deform(original, rest, scene.model.faces).means,
         jnp.asarray(av.gaussian_normals(original.binding, rest, scene.model.faces))], -1)
+    programs = {} if programs is None else programs
+    if step_config not in programs:
+        programs[step_config] = (make_edit_step(step_config), make_preview(step_config.blend))
     return EditSetup(config, step_config, scene, original, rig, pairs, canonical,
-                   step or make_edit_step(step_config), preview or make_preview(step_config.blend))
+                     *programs[step_config])
 
 
 def make_sampler(session: EditSetup, editor=None) -> EditSampler:

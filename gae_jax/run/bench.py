@@ -35,7 +35,7 @@ class Bench:
         self.path = path
         self.clip_folder = clip_folder
         self.frames = frames
-        self.steps: dict = {}
+        self.programs: dict = {}  # {StepConfig: (step, preview)}, see `edit.setup`
         self.evalsets: dict = {}
         self.results: dict = {}
         if os.path.isfile(path):
@@ -45,10 +45,8 @@ class Bench:
     def setup(self, config: EditConfig, scene, original):
         """(`edit.setup`'s EditSetup, whether its step is new): the step and preview are
         compiled once per StepConfig."""
-        key = StepConfig.of(config)
-        fresh = key not in self.steps
-        setup = edit.setup(config, scene, original, *self.steps.get(key, (None, None)))
-        self.steps[key] = (setup.step, setup.preview)
+        fresh = StepConfig.of(config) not in self.programs
+        setup = edit.setup(config, scene, original, self.programs)
         return setup, fresh
 
     def evalset(self, scene, prompt: str):

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from gae_jax import instructions
 from gae_jax.edit import edit
-from gae_jax.edit.config import EditConfig, StepConfig
+from gae_jax.edit.config import EditConfig
 from gae_jax.edit.editors import make_editor
 from gae_jax.evaluation import clip_score, score, truth
 from gae_jax.run import folder, outputs
@@ -64,10 +64,8 @@ def run(config: EditConfig, workdir: str, scene=None, original=None, resume: boo
         scene_config = dataclasses.replace(scene_config, head=scene.head)
     if original is None:
         original = original_avatar(scene, config.reconstruct_iterations, progress)
-    programs = {} if shared is None else shared.setdefault("programs", {})
-    step_config = StepConfig.of(config)
-    setup = edit.setup(config, scene, original, *programs.get(step_config, (None, None)))
-    programs[step_config] = (setup.step, setup.preview)
+    setup = edit.setup(config, scene, original,
+                       None if shared is None else shared.setdefault("programs", {}))
     timings["setup_s"] = round(time.perf_counter() - t0, 1)
     t1 = time.perf_counter()
     edited, history = edit.edit_avatar(setup, workdir, resume=resume, progress=progress,
