@@ -294,10 +294,12 @@ def error_maps(scene, original, misses: list, evalsets: dict, path: str, size: i
             ax.imshow(np.clip(img[crop], 0, 1), cmap="magma" if img.ndim == 2 else None,
                       vmin=0, vmax=1, interpolation="nearest")
             ax.set_title(title, fontsize=8)
-        axes[r][0].set_ylabel("")
-        axes[r][0].text(0.0, 1.22, f"{prompt}: {why}", transform=axes[r][0].transAxes,
-                        fontsize=8, ha="left", va="bottom")
-    fig.tight_layout(h_pad=2.2)
+    height = fig.get_size_inches()[1]
+    fig.tight_layout(h_pad=2.2, rect=(0, 0, 1, 1 - 0.3 / height))
+    for r, (prompt, why) in enumerate(rows):  # above the row's panel titles
+        box = axes[r][0].get_position()
+        fig.text(box.x0, box.y1 + 0.2 / height, f"{prompt}: {why}", fontsize=8, ha="left",
+                 va="bottom")
     save_figure(fig, path)
     plt.close(fig)
 

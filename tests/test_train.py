@@ -420,3 +420,47 @@ def test_one_device_call_draws_the_indices_the_per_call_draws_would():
             np.testing.assert_array_equal(got[1], rows)
             np.testing.assert_array_equal(got[2], picks)
             np.testing.assert_array_equal(got[3], np.asarray(edit_keys))
+
+
+@pytest.mark.parametrize("decay", [0.0, 0.5, 0.9])
+def test_the_running_average_weighs_each_iterate_as_its_closed_form(decay):
+    """After T steps the average is sum_k (1 - d) d^(T - k) x_k / sum_k (1 - d) d^(T - k) over
+    the iterates x_1 .. x_T alone (the starting params weigh nothing); d = 0: x_T."""
+    rng = np.random.default_rng(0)
+    iterates = [{"colors": rng.normal(size=(4, 3)), "opacity_logits": rng.normal(size=(4,))}
+                for _ in range(7)]
+    average = {k: np.full_like(v, 1e3) for k, v in iterates[0].items()}  # weighs nothing
+    for t, x in enumerate(iterates, start=1):
+        average = step_module.average_params(average, x, jnp.int32(t), decay)
+        weights = np.array([(1 - decay) * decay ** (t - k) if decay else float(k == t)
+                            for k in range(1, t + 1)])
+        for name in x:
+            expected = np.tensordot(weights / weights.sum(),
+                                    np.stack([it[name] for it in iterates[:t]]), 1)
+            np.testing.assert_allclose(np.asarray(average[name]), expected, rtol=1e-5,
+                                       atol=1e-5)
+
+
+def test_the_released_edit_is_the_average_and_moves_nothing_outside_its_region(base):
+    """The edit releases the running average of its iterates; a Gaussian outside the region
+    keeps its original params bit for bit in it, as in the last iterate."""
+    s = session_for(base, iterations=6, lr=5e-2, editor_noise=0.3, average_decay=0.8)
+    edited, _ = edit.edit_avatar(s)
+    sampler_ = edit.make_sampler(s)
+    state = edit.fresh_state(s)
+    averages = []
+    for i in range(6):
+        batch = sampler.put_batch(sampler_.batch(state.params, i, jax.random.PRNGKey(0)), None)
+        state, _ = s.step(state, s.rig, batch, jnp.asarray(sampler_.editable()))
+        averages.append(jax.device_get(state.params))
+    outside = ~sampler_.editable()
+    assert outside.sum() > 100
+    for name, value in edited.trainable().items():
+        weights = np.array([0.2 * 0.8 ** (6 - k) for k in range(1, 7)])
+        expected = np.tensordot(weights / weights.sum(),
+                                np.stack([np.asarray(a[name]) for a in averages]), 1)
+        np.testing.assert_allclose(np.asarray(value), expected, rtol=1e-4, atol=1e-5)
+        np.testing.assert_array_equal(np.asarray(value)[outside],
+                                      np.asarray(s.original.trainable()[name])[outside])
+        assert not np.allclose(np.asarray(value), np.asarray(averages[-1][name])) or \
+            name != "colors"

@@ -152,5 +152,5 @@ def edit_avatar(session: EditSetup, out_dir: Optional[str] = None, resume: bool 
     history = recorder.close()
     if path and finished and not keep_checkpoint:
         loop.remove_checkpoint(path)
-    params = jax.tree_util.tree_map(jnp.asarray, jax.device_get(state.params))
+    params = jax.tree_util.tree_map(jnp.asarray, jax.device_get(state.average))
     return session.original.with_params(params), history

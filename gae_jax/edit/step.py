@@ -3,7 +3,7 @@
 One step: render the batch of (camera, frame) samples through the rig (traced once: its VJP
 serves the avatar update after the discriminator has moved), update the discriminator on
 (real, fake) pairs, then the avatar on lambda_1 (L1 + w (1 - SSIM)) + lambda_3 L_G
-+ lambda_4 L_const.
++ lambda_4 L_const, and the running average of the avatar's iterates that the edit releases.
 The batch axis is `vmap`ped; shard it over devices (`sampler.put_batch`) to run data-parallel.
 """
 
@@ -32,13 +32,16 @@ SGD_MOMENTUM = 0.9
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class EditState:
-    """Avatar params and optimiser state, discriminator params and optimiser state, step."""
+    """Avatar params and optimiser state, discriminator params and optimiser state, step, and
+    the running average of the avatar's params over the steps (`average_params`: what the edit
+    releases)."""
 
     params: dict
     opt_state: optax.OptState
     d_params: dict
     d_opt_state: optax.OptState
     step: jax.Array
+    average: dict
 
 
 def avatar_optimizer(config: StepConfig) -> optax.GradientTransformation:
@@ -74,7 +77,24 @@ def initial_state(config: StepConfig, params: dict, image_size: tuple, key) -> E
     params = jax.tree_util.tree_map(jnp.array, params)
     d_params = gan.init_params(key, image_size)
     return EditState(params, avatar_optimizer(config).init(params), d_params,
-                     discriminator_optimizer(config).init(d_params), jnp.int32(0))
+                     discriminator_optimizer(config).init(d_params), jnp.int32(0),
+                     jax.tree_util.tree_map(jnp.array, params))
+
+
+def average_params(average: dict, params: dict, step: jax.Array, decay: float) -> dict:
+    """The running average after `step` (1, 2, ...) iterates: an exponential average of decay
+    `decay`, debiased as Adam's moments are, so that it weighs the iterates 1 .. step alone
+    (iterate k by (1 - decay) decay^(step - k), normalised; the params before the first step
+    have no weight). `decay` 0: the last iterate. A noisy 2D editor's per-call errors (colour
+    jitter, outline moves) enter the iterates one at a time; their average cancels them, as
+    Polyak-Ruppert averaging does a noisy gradient's."""
+    if decay == 0:
+        return params
+    decay = jnp.float32(decay)
+    weight = (1.0 - decay) / (1.0 - decay ** step.astype(jnp.float32))
+    # a + w (p - a): a param that did not move keeps its value bit for bit
+    return jax.tree_util.tree_map(
+        lambda a, p: jnp.where(step == 1, p, a + weight * (p - a)), average, params)
 
 
 def make_edit_step(config: StepConfig):
@@ -150,7 +170,9 @@ def make_edit_step(config: StepConfig):
                   for k, v in params.items()}
         psnr = jnp.mean(jax.vmap(losses.psnr)(images, target))
         metrics = dict(recon=recon, g_adv=adv, d_loss=d_value, const=const, psnr_to_edit=psnr)
-        return EditState(params, opt_state, d_params, d_opt_state, state.step + 1), metrics
+        step = state.step + 1
+        average = average_params(state.average, params, step, config.average_decay)
+        return EditState(params, opt_state, d_params, d_opt_state, step, average), metrics
 
     return fast_jit(step, donate_argnums=0)
 
