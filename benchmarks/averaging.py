@@ -79,7 +79,7 @@ def main(argv=None) -> int:
                    else ""]) + " |")
     report = ["# Averaging the edit's iterates (128 px MakeHuman head, 100 iterations, seed "
               f"{args.seed})", "",
-              f"Command: `python benchmarks/averaging.py`. Edited region, PSNR dB against the "
+              "Command: `python benchmarks/averaging.py`. Edited region, PSNR dB against the "
               "ideal edit (mean of the three protocols), and in brackets the worst loss of a "
               "preserved group below the untouched avatar (any protocol).", "",
               "\n".join(lines)]

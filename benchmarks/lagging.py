@@ -14,6 +14,7 @@ Gaussians arrived.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 
@@ -36,8 +37,6 @@ SHARES = (0.1, 0.5)
 
 
 def main(argv=None) -> int:
-    import json
-
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--prompts", nargs="+", default=list(PROMPTS))
     p.add_argument("--out", default="benchmarks/results/lagging")

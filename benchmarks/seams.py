@@ -89,7 +89,10 @@ def main(argv=None) -> int:
             edited_region_colour=np.round((w[mine, None] * np.asarray(avatar.colors)[mine]).sum(0)
                                           / max(w[mine].sum(), 1e-12), 3).tolist())
     path = args.out + ".json"
-    rows = json.load(open(path)) if os.path.isfile(path) else []
+    rows = []
+    if os.path.isfile(path):
+        with open(path) as f:
+            rows = json.load(f)
     rows = [r for r in rows if (r["prompt"], r["protocol"], r["group"]) !=
             (args.prompt, args.protocol, args.group)] + [row]
     atomic_write_bytes(path, json.dumps(rows, indent=1).encode())
