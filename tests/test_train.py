@@ -13,6 +13,7 @@ import pytest
 from gae_jax import evaluate, train
 from gae_jax.edit import config as edit_config
 from gae_jax.edit import edit, sampler
+from gae_jax.edit import region as region_module
 from gae_jax.edit import step as step_module
 from gae_jax.evaluation import protocols, truth
 from gae_jax.fit.config import ReconstructConfig
@@ -464,3 +465,106 @@ def test_the_released_edit_is_the_average_and_moves_nothing_outside_its_region(b
                                       np.asarray(s.original.trainable()[name])[outside])
     # the release is not the last iterate
     assert not np.allclose(np.asarray(edited.colors), np.asarray(iterates[-1]["colors"]))
+
+
+def test_changed_share_is_the_share_of_region_pixels_changed_beyond_the_threshold():
+    """`region.changed_share` against a count pixel by pixel and channel by channel."""
+    rng = np.random.default_rng(1)
+    unedited = rng.uniform(size=(20, 24, 3)).astype(np.float32)
+    edited = unedited.copy()
+    edited[5:12, 6:15, 2] += rng.uniform(0.0, 0.3, size=(7, 9)).astype(np.float32)
+    edited[0:4, 0:3, 0] -= 0.5  # outside the region
+    inside = np.zeros((20, 24), bool)
+    inside[3:16, 4:18] = True
+    count = sum(any(abs(float(edited[y, x, c]) - float(unedited[y, x, c])) > 0.1
+                    for c in range(3)) for y in range(20) for x in range(24) if inside[y, x])
+    expected = count / inside.sum()
+    assert 0.1 < expected < 0.5
+    assert region_module.changed_share(edited, unedited, inside, 0.1) == pytest.approx(expected)
+    assert region_module.changed_share(edited, unedited, np.zeros_like(inside), 0.1) == 0.0
+
+
+class HalfEditor:
+    """Paints the region the prompt names blue in every call, or only its upper half in calls
+    whose key says so (`partial(key)`); records the keys it was called with."""
+
+    def __init__(self, partial):
+        self.partial, self.keys = partial, []
+
+    def edit(self, render, original, prompt, key, context):
+        self.keys.append(np.asarray(key))
+        region = context["regions"] == head.REGION_ID["lips"]
+        if self.partial(key):
+            rows = np.nonzero(region.any(1))[0]
+            region = region & (np.arange(region.shape[0])[:, None] < np.median(rows))
+        out = np.array(original, np.float32)
+        out[region] = (0.0, 0.0, 1.0)
+        return out
+
+
+def test_a_partial_2d_edit_is_made_again_and_the_whole_one_kept(base):
+    """After `USUAL_AFTER` judged edits, an edit that changes half the lips is made again with
+    the key folded with RETRY_SALT + 1 and the whole edit is kept; with every try partial the
+    one that changed most is; with edit_retries 0 the partial edit stays."""
+    s = session_for(base, iterations=2)
+    params = s.original.trainable()
+    cam, row = int(s.scene.train_cameras[0]), 0
+    key = jax.random.PRNGKey(4)
+    calls = []
+
+    def whole_edit(editor, retries, k):
+        sampler_ = edit.make_sampler(dataclasses.replace(
+            s, config=dataclasses.replace(s.config, edit_retries=retries)), editor)
+        view = s.preview(params, s.rig, jnp.int32(cam), jnp.int32(row), s.canonical)
+        labels = sampler_.labels(cam, row)
+        unedited = sampler_.original_image(cam, row) / 255.0
+        context = sampler.editor_context(view, (cam, 0, 0), labels)
+        for i in range(sampler.USUAL_AFTER):  # whole edits: the usual share
+            sampler_.whole_edit(np.asarray(view.image), unedited, context,
+                                jax.random.PRNGKey(100 + i), labels)
+        calls.append(len(editor.keys))
+        out = sampler_.whole_edit(np.asarray(view.image), unedited, context, k, labels)
+        lips = labels == head.REGION_ID["lips"]
+        assert lips.sum() >= sampler.JUDGED_PIXELS
+        return out, lips, sampler_, unedited
+
+    first_only = HalfEditor(lambda k: np.array_equal(np.asarray(k), np.asarray(key)))
+    out, lips, sampler_, unedited = whole_edit(first_only, 2, key)
+    assert len(first_only.keys) == calls[-1] + 2  # the partial call and one retry
+    np.testing.assert_array_equal(first_only.keys[-1], jax.random.fold_in(
+        key, sampler.RETRY_SALT + 1))
+    assert sampler_.shares[-2] < sampler.PARTIAL * np.median(sampler_.shares[:-2])
+    np.testing.assert_allclose(out[lips], np.tile([0.0, 0.0, 1.0], (lips.sum(), 1)))
+
+    never = HalfEditor(lambda k: not any(np.array_equal(np.asarray(k), np.asarray(
+        jax.random.PRNGKey(100 + i))) for i in range(sampler.USUAL_AFTER)))
+    out, _, sampler_, _ = whole_edit(never, 2, key)
+    assert len(never.keys) == calls[-1] + 3
+    assert sampler_.shares[-1] == sampler_.shares[-2] == sampler_.shares[-3]
+    assert region_module.changed_share(out, unedited, lips, 0.1) == pytest.approx(
+        sampler_.shares[-1])
+
+    kept = HalfEditor(lambda k: np.array_equal(np.asarray(k), np.asarray(key)))
+    out, _, _, _ = whole_edit(kept, 0, key)
+    assert len(kept.keys) == calls[-1] + 1
+    assert (np.abs(out - unedited).max(-1)[lips] < 1e-6).mean() > 0.2  # half the lips kept
+
+
+def test_a_resumed_run_judges_partial_edits_as_the_uninterrupted_one(base, tmp_path):
+    """The shares the judged edits changed are checkpointed: with an editor that edits half
+    the region in half its calls, a run interrupted after its checkpoint and resumed equals the
+    uninterrupted one, and retries did happen."""
+    def partial(k):
+        return float(jax.random.uniform(jax.random.fold_in(k, 99))) < 0.5
+
+    s = session_for(base, iterations=8, checkpoint_every=4)
+    once = HalfEditor(partial)
+    full, _ = edit.edit_avatar(s, str(tmp_path / "a"), editor=once)
+    retried = [np.array_equal(b, jax.random.fold_in(a, sampler.RETRY_SALT + 1))
+               for a, b in zip(once.keys, once.keys[1:])]
+    assert sum(retried) >= 2
+    edit.edit_avatar(s, str(tmp_path / "b"), stop_after=5, editor=HalfEditor(partial))
+    resumed, _ = edit.edit_avatar(s, str(tmp_path / "b"), resume=True,
+                                  editor=HalfEditor(partial))
+    for a, b in zip(jax.tree_util.tree_leaves(full), jax.tree_util.tree_leaves(resumed)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

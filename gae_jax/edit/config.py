@@ -4,13 +4,14 @@ presets, and the small hashable `StepConfig` that the jitted step reads.
 Presets: `paper` (the paper's settings: forward WABE, L1 + SSIM, all rates 1e-2, 1000
 iterations, no edit region), `fast` (the README default: the prompt's region, targets composited
 over the unedited image, standard blending, L1, rates decaying to 3 %, the average of the
-iterates released), the ablations `wabe` (forward WABE), `wabe_grad`
+iterates released, partial 2D edits made again), the ablations `wabe` (forward WABE), `wabe_grad`
 (WABE on the gradient), `ssim` (the paper's L1 + SSIM), `no_adv`, `no_region` (every Gaussian may
 move), `previous` (the default before region-aware editing: no region, the editor keeping the
 render, WABE on the gradient, L1 + SSIM, colour rate 1e-2 with Adam eps 1e-4, no decay), `code`
 (the released code's gradient mask and pairs), and the baseline `in2n` (no GAN,
 Instruct-NeRF2NeRF's dataset update, no region); `code` and `in2n` release the last iterate
-with rates decaying to 10 %, as the default did before it averaged its iterates.
+with rates decaying to 10 % and keep every 2D edit, as the default did before it averaged its
+iterates.
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ class EditConfig:
 
     # What a checkpoint or benchmark record written before a field existed did, where that is
     # not the field's default: the loss was L1 + SSIM before `ssim_weight`.
-    ABSENT_MEANS: ClassVar[dict] = {"ssim_weight": 1.0, "average_decay": 0.0}
+    ABSENT_MEANS: ClassVar[dict] = {"ssim_weight": 1.0, "average_decay": 0.0,
+                                    "edit_retries": 0}
 
     prompt: str = "turn the lips blue"
     editor: str = "semantic"
@@ -41,6 +43,7 @@ class EditConfig:
     editor_keeps: str = "original"
     editor_bleed: int = 0
     editor_modes: int = 1
+    edit_retries: int = 2
     ip2p_folder: str = ""
     clip_folder: str = ""
     iterations: int = 100
@@ -91,6 +94,8 @@ class EditConfig:
             raise ValueError(f"lr_final must be in (0, 1], got {self.lr_final}")
         if not 1 <= self.editor_modes <= 8:
             raise ValueError(f"editor_modes must be in [1, 8], got {self.editor_modes}")
+        if not 0 <= self.edit_retries <= 8:
+            raise ValueError(f"edit_retries must be in [0, 8], got {self.edit_retries}")
         if not 0 <= self.average_decay < 1:
             raise ValueError(f"average_decay must be in [0, 1), got {self.average_decay}")
         if self.lr_decay_steps < 1:
@@ -122,6 +127,9 @@ HELP = {
     "editor_modes": "answers the semantic editor picks from per call, a multimodal "
                     "inconsistency: stripe phases (2: the stripes land on either half of the "
                     "region) or, for a recolour, shades of the colour from dark to light",
+    "edit_retries": "a 2D edit that changes under 75 %% of the share of the region the run's "
+                    "edits usually change (a partial edit: one lip of two) is made again with "
+                    "another key, up to this many times (0: never; named regions only)",
     "ip2p_folder": "local diffusers InstructPix2Pix folder (editor ip2p)",
     "clip_folder": "local CLIP folder for CLIP-S / CLIP-C in metrics.json (skipped if empty)",
     "iterations": "edit iterations",
@@ -173,19 +181,20 @@ PRESETS = {
     "paper": dict(iterations=1000, blend="wabe", adversarial=True, pair_mode="paper",
                   recon_weight=10.0, ssim_weight=1.0, d_weight=0.01, g_weight=0.01,
                   const_weight=10.0, lr=1e-2, lr_geometry=1e-2, lr_means=1e-2, lr_final=1.0,
-                  adam_eps=1e-15, region="none", editor_keeps="render", average_decay=0.0),
+                  adam_eps=1e-15, region="none", editor_keeps="render", average_decay=0.0,
+                  edit_retries=0),
     "fast": dict(),
     "no_region": dict(region="none"),
     "previous": dict(region="none", editor_keeps="render", blend="wabe_grad", ssim_weight=1.0,
-                     lr=1e-2, lr_final=1.0, adam_eps=1e-4, average_decay=0.0),
+                     lr=1e-2, lr_final=1.0, adam_eps=1e-4, average_decay=0.0, edit_retries=0),
     "wabe": dict(blend="wabe"),
     "wabe_grad": dict(blend="wabe_grad"),
     "ssim": dict(ssim_weight=1.0),
     "no_adv": dict(adversarial=False),
     "code": dict(pair_mode="code", gradient_mask="code", region="none", editor_keeps="render",
-                 ssim_weight=1.0, lr_final=0.1, average_decay=0.0),
+                 ssim_weight=1.0, lr_final=0.1, average_decay=0.0, edit_retries=0),
     "in2n": dict(adversarial=False, dataset_update=True, region="none", lr_final=0.1,
-                 average_decay=0.0),
+                 average_decay=0.0, edit_retries=0),
 }
 
 

@@ -89,6 +89,7 @@ def _save(path, state, sampler: EditSampler, history, config):
         if keys:
             arrays[f"{name}/images"] = np.stack([store[k] for k in keys])
     arrays["region/votes"] = sampler.votes
+    arrays["region/shares"] = np.asarray(sampler.shares, np.float64)
     loop.save_checkpoint(path, dict(state=state), arrays, config, history=history)
 
 
@@ -101,6 +102,7 @@ def _load(path, template, sampler: EditSampler, config):
             images = arrays[f"{name}/images"]
             store.update({(int(a), int(b)): images[j] for j, (a, b) in enumerate(keys)})
     sampler.votes = np.asarray(arrays["region/votes"], np.float64)
+    sampler.shares = [float(v) for v in arrays["region/shares"]]
     return trees["state"], meta["history"]
 
 

@@ -84,6 +84,18 @@ def change_mask(edit: np.ndarray, unedited: np.ndarray, threshold: float) -> np.
     return cv2.blur(diff, (3, 3)).max(-1) > threshold
 
 
+def changed_share(edit: np.ndarray, unedited: np.ndarray, inside: np.ndarray,
+                  threshold: float) -> float:
+    """Share in [0, 1] of the (H, W) bool `inside` pixels where the (H, W, 3) edit differs from
+    the unedited image by more than `threshold` in some channel (pixel by pixel: a blur would
+    dilute a thin region's change into its unchanged neighbours)."""
+    inside = np.asarray(inside, bool)
+    if not inside.any():
+        return 0.0
+    diff = np.abs(np.asarray(edit, np.float32) - np.asarray(unedited, np.float32)).max(-1)
+    return float((diff[inside] > threshold).mean())
+
+
 def soft_mask(coverage: np.ndarray, dilate: int, blur: float) -> np.ndarray:
     """(H, W) float in [0, 1]: the region's rendered coverage (H, W), binarised at 1/2, dilated
     by `dilate` pixels and blurred with a Gaussian of sigma `blur` pixels (0: none); then the

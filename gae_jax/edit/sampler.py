@@ -6,6 +6,11 @@ A named region that most training views do not show (the teeth, the tongue) is e
 views that show it (`showing_views`): a uniform draw would spend most iterations on views where
 its Gaussians get no gradient.
 
+A 2D editor sometimes edits part of the region only (one lip of two, the upper teeth): an edit
+that changes much less of the region than the run's edits usually do is made again with
+another key (`EditConfig.edit_retries`). A rarely seen Gaussian (a back tooth) learns from a few
+edits, and one that left it unedited pulls it back to its old colour.
+
 Edits are quantised to 8 bits (an editor's output image), so checkpoints hold them exactly and
 a resumed run reproduces an uninterrupted one.
 """
@@ -29,6 +34,12 @@ from gae_jax.util.image import to_uint8
 
 SHOWING_FRACTION = 0.25  # of the pixels a well-showing view shows, for a view to count
 ALL_VIEWS = 0.95  # above this share of showing views the draw stays uniform
+PARTIAL = 0.75  # an edit changing under this share of the usual share of the region is partial
+USUAL_AFTER = 3  # edits of a run before the usual share is known
+USUAL_LEAST = 0.4  # below this usual share no edit is judged partial
+CHANGED = 0.05  # a pixel differing from the unedited one by more (some channel) is changed
+JUDGED_PIXELS = 4  # region pixels a view must show for its edit to be judged
+RETRY_SALT = 0x7265  # folded into an edit's key for each retry
 
 
 def frame_table(scene, pairs):
@@ -157,6 +168,7 @@ class EditSampler:
         self.showing = (None if self.region in (("none",), ("auto",)) else
                         showing_views(scene, self.region))
         self.label_cache: dict = {}
+        self.shares: list = []  # share of the region each judged edit changed, in call order
         # What `draw` samples from: cameras, (camera, frame row) pairs, neighbour counts.
         self.draw_tables = (jnp.asarray(scene.train_cameras, jnp.int32),
                             jnp.asarray(np.zeros((1, 2)) if self.showing is None
@@ -176,14 +188,36 @@ class EditSampler:
         unedited = self.original_image(cam, row) / 255.0
         labels = self.labels(cam, row)
         context = editor_context(view, (cam,) + tuple(self.pairs[row]), labels)
-        edited = self.editor.edit(np.asarray(view.image), unedited, self.config.prompt, key,
-                                  context)
-        edited = np.clip(edited, 0, 1)
+        edited = self.whole_edit(np.asarray(view.image), unedited, context, key, labels)
         if self.region != ("none",):
             edited = self.composited(params, cam, row, edited, unedited, view, labels)
         edited = to_uint8(edited)
         self.cache[(cam, row)] = edited
         return edited
+
+    def whole_edit(self, image, unedited, context: dict, key, labels) -> np.ndarray:
+        """The 2D editor's (H, W, 3) edit of a view, clipped to [0, 1]. With a named region, an
+        edit that changes (`region.changed_share`) under `PARTIAL` of the median share the
+        run's judged edits changed is made again with the key folded with `RETRY_SALT` + k,
+        up to `edit_retries` times; the first that is not partial is kept, else the one that
+        changed most. Every judged call's share enters the median."""
+        c = self.config
+        judged = self.fixed is not None and self.region != ("none",)
+        inside = (np.isin(labels, [head.REGION_ID[n] for n in self.region]) if judged
+                  else None)
+        if not judged or inside.sum() < JUDGED_PIXELS:
+            return np.clip(self.editor.edit(image, unedited, c.prompt, key, context), 0, 1)
+        usual = (float(np.median(self.shares)) if len(self.shares) >= USUAL_AFTER else 0.0)
+        tries = []
+        for k in range(1 + (c.edit_retries if usual >= USUAL_LEAST else 0)):
+            k_edit = key if k == 0 else jax.random.fold_in(key, RETRY_SALT + k)
+            edited = np.clip(self.editor.edit(image, unedited, c.prompt, k_edit, context), 0, 1)
+            share = edit_region.changed_share(edited, unedited, inside, CHANGED)
+            self.shares.append(share)
+            tries.append((share, edited))
+            if share >= PARTIAL * usual:
+                return edited
+        return max(tries, key=lambda t: t[0])[1]
 
     def labels(self, cam: int, row: int) -> np.ndarray:
         """(H, W) int8 region labels of a training view: the tracked mesh projected into it
