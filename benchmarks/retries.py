@@ -27,7 +27,8 @@ import instructions as suite  # the suite's scoring, a script beside this one
 
 PROMPTS = ("make the teeth black", "make the teeth yellow", "paint the teeth silver",
            "turn the lips blue", "make the tongue light blue", "add green stripes to the skin")
-VARIANTS = {"every edit kept": dict(edit_retries=0), "partial edits made again (default)": {}}
+DEFAULT = "partial edits made again (default)"
+VARIANTS = {"every edit kept": dict(edit_retries=0), DEFAULT: {}}
 
 
 def main(argv=None) -> int:
@@ -42,15 +43,15 @@ def main(argv=None) -> int:
     lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
     for prompt in PROMPTS:
         bench.evalset(scene, prompt)
+        scores = {name: [suite.summary(bench.run(
+            f"{name}/{prompt}/seed{seed}",
+            preset("fast", prompt=prompt, checkpoint_every=0, seed=seed, **fields),
+            scene, original)) for seed in args.seeds] for name, fields in VARIANTS.items()}
         cells = []
-        for name, fields in VARIANTS.items():
-            scores = [suite.summary(bench.run(
-                f"{name}/{prompt}/seed{seed}",
-                preset("fast", prompt=prompt, checkpoint_every=0, seed=seed, **fields),
-                scene, original)) for seed in args.seeds]
-            edited = [s["edited"] for s in scores]
+        for name in VARIANTS:
+            edited = [s["edited"] for s in scores[name]]
             cells.append(f"{fmt(np.mean(edited))} ({', '.join(fmt(e) for e in edited)})")
-        worst = max(s["worst_loss"] for s in scores)
+        worst = max(s["worst_loss"] for s in scores[DEFAULT])
         free = suite.summary(bench.run(f"noise-free/{prompt}", preset(
             "fast", prompt=prompt, checkpoint_every=0, editor_noise=0.0), scene, original))
         lines.append("| " + " | ".join([prompt] + cells + [fmt(worst), fmt(free["edited"])])

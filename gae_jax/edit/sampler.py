@@ -165,8 +165,8 @@ class EditSampler:
         self.fixed = (np.ones(len(labels), bool) if self.region == ("none",) else
                       None if self.region == ("auto",) else
                       edit_region.named_selection(labels, self.region))
-        self.showing = (None if self.region in (("none",), ("auto",)) else
-                        showing_views(scene, self.region))
+        self.named = self.region not in (("none",), ("auto",))  # regions the labels name
+        self.showing = showing_views(scene, self.region) if self.named else None
         self.label_cache: dict = {}
         self.shares: list = []  # share of the region each judged edit changed, in call order
         # What `draw` samples from: cameras, (camera, frame row) pairs, neighbour counts.
@@ -202,10 +202,8 @@ class EditSampler:
         up to `edit_retries` times; the first that is not partial is kept, else the one that
         changed most. Every judged call's share enters the median."""
         c = self.config
-        judged = self.fixed is not None and self.region != ("none",)
-        inside = (np.isin(labels, [head.REGION_ID[n] for n in self.region]) if judged
-                  else None)
-        if not judged or inside.sum() < JUDGED_PIXELS:
+        inside = self.region_pixels(labels) if self.named else None
+        if inside is None or inside.sum() < JUDGED_PIXELS:
             return np.clip(self.editor.edit(image, unedited, c.prompt, key, context), 0, 1)
         usual = (float(np.median(self.shares)) if len(self.shares) >= USUAL_AFTER else 0.0)
         tries = []
@@ -218,6 +216,10 @@ class EditSampler:
             if share >= PARTIAL * usual:
                 return edited
         return max(tries, key=lambda t: t[0])[1]
+
+    def region_pixels(self, labels: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the named region's pixels in a view's (H, W) labels."""
+        return np.isin(labels, [head.REGION_ID[n] for n in self.region])
 
     def labels(self, cam: int, row: int) -> np.ndarray:
         """(H, W) int8 region labels of a training view: the tracked mesh projected into it
@@ -245,8 +247,7 @@ class EditSampler:
             coverage = np.asarray(self.coverage(params, self.rig, cam_, row_,
                                                 jnp.asarray(self.editable())))
         else:
-            coverage = np.isin(labels, [head.REGION_ID[n] for n in self.region]).astype(
-                np.float32)
+            coverage = self.region_pixels(labels).astype(np.float32)
         mask = (edit_region.soft_mask(coverage, c.region_dilate, c.region_blur)
                 * np.asarray(view.alpha))
         return edit_region.composite(edited, unedited, mask)
