@@ -221,6 +221,19 @@ def stripe_on(y: np.ndarray, phase: float = 0.0) -> np.ndarray:
     return np.sin(2 * np.pi * np.asarray(y) / STRIPE_PERIOD + 2 * np.pi * phase) > 0
 
 
+def stripe_distance(y: np.ndarray, pixel: np.ndarray, phase: float = 0.0) -> np.ndarray:
+    """Signed distance in pixels from each pixel's centre to the nearest stripe edge (positive on
+    a stripe, as `stripe_on` decides): (H, W) head-space heights `y`, (H, W) `pixel`, the height
+    one pixel spans there (|grad y|). Its clip(d + 1/2, 0, 1) is the share of the pixel a
+    straight stripe edge leaves on the stripe, as a supersampled render of the stripes has
+    (exact for a pixel narrower than a stripe, STRIPE_PERIOD / 2, across which y is linear)."""
+    u = np.mod(np.asarray(y, np.float64) / STRIPE_PERIOD + phase, 1.0)
+    on = u < 0.5
+    half = np.mod(u, 0.5)
+    edge = STRIPE_PERIOD * np.minimum(half, 0.5 - half)
+    return (np.where(on, edge, -edge) / np.maximum(pixel, 1e-9)).astype(np.float32)
+
+
 def mode_of(instruction: Instruction, mode: int, modes: int) -> tuple[Instruction, float]:
     """Answer `mode` (0 .. modes - 1) of a `modes`-modal editor to `instruction`, and its
     stripes' phase. Stripes keep their colour and shift by mode / modes of a period (the other

@@ -6,6 +6,11 @@ A named region that most training views do not show (the teeth, the tongue) is e
 views that show it (`showing_views`): a uniform draw would spend most iterations on views where
 its Gaussians get no gradient.
 
+Stripes are placed by the tracked mesh's rest positions projected into the view
+(`types.projected_rest_positions`, as the labels are): the avatar's rendered positions, a
+blend of its Gaussians' along each ray, misplace them (docs/instructions.md measures by how
+much).
+
 A 2D editor sometimes edits part of the region only (one lip of two, the upper teeth): an edit
 that changes much less of the region than the run's edits usually do is made again with
 another key (`EditConfig.edit_retries`). A rarely seen Gaussian (a back tooth) learns from a few
@@ -24,11 +29,12 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from gae_jax import instructions
 from gae_jax.edit import region as edit_region
 from gae_jax.edit.config import EditConfig
 from gae_jax.edit.editors import make_editor
 from gae_jax.model import head
-from gae_jax.scene.types import projected_labels, training_labels
+from gae_jax.scene.types import projected_labels, projected_rest_positions, training_labels
 from gae_jax.util.image import to_uint8
 
 
@@ -40,6 +46,14 @@ USUAL_LEAST = 0.4  # below this usual share no edit is judged partial
 CHANGED = 0.05  # a pixel differing from the unedited one by more (some channel) is changed
 JUDGED_PIXELS = 4  # region pixels a view must show for its edit to be judged
 RETRY_SALT = 0x7265  # folded into an edit's key for each retry
+
+
+def _asks_stripes(prompt: str) -> bool:
+    """Whether the prompt is an instruction to paint stripes (a style is not)."""
+    try:
+        return instructions.parse(prompt).stripes
+    except ValueError:
+        return False
 
 
 def frame_table(scene, pairs):
@@ -86,13 +100,16 @@ def configured_editor(config: EditConfig):
     return make_editor(config.editor, **options)
 
 
-def editor_context(view, where: tuple, labels=None) -> dict:
+def editor_context(view, where: tuple, labels=None, canonical=None) -> dict:
     """The context a 2D editor reads (`editors` protocol) from a `step.Preview` of one view;
     where: (camera, sequence, frame); labels: (H, W) region labels of the view to use instead
-    of the avatar's rendered ones (a training view's projected mesh labels)."""
+    of the avatar's rendered ones (a training view's projected mesh labels); canonical: (H, W,
+    3) head-space positions to use instead of the avatar's rendered ones (the tracked mesh's
+    rest positions projected into the view)."""
     regions = np.asarray(view.regions) if labels is None else np.maximum(labels, -1)
-    return dict(regions=regions, canonical=np.asarray(view.coords),
-                normals=np.asarray(view.normals), view=tuple(where))
+    coords = np.asarray(view.coords) if canonical is None else np.asarray(canonical)
+    return dict(regions=regions, canonical=coords, normals=np.asarray(view.normals),
+                view=tuple(where))
 
 
 def showing_views(scene, region: tuple, stride: int | None = None) -> np.ndarray | None:
@@ -168,6 +185,8 @@ class EditSampler:
         self.named = self.region not in (("none",), ("auto",))  # regions the labels name
         self.showing = showing_views(scene, self.region) if self.named else None
         self.label_cache: dict = {}
+        self.rest_cache: dict = {}
+        self.stripes = _asks_stripes(config.prompt)
         self.shares: list = []  # share of the region each judged edit changed, in call order
         # What `draw` samples from: cameras, (camera, frame row) pairs, neighbour counts.
         self.draw_tables = (jnp.asarray(scene.train_cameras, jnp.int32),
@@ -187,7 +206,8 @@ class EditSampler:
         view = self.preview(params, self.rig, jnp.int32(cam), jnp.int32(row), self.canonical)
         unedited = self.original_image(cam, row) / 255.0
         labels = self.labels(cam, row)
-        context = editor_context(view, (cam,) + tuple(self.pairs[row]), labels)
+        canonical = self.rest_positions(cam, row) if self.stripes else None
+        context = editor_context(view, (cam,) + tuple(self.pairs[row]), labels, canonical)
         edited = self.whole_edit(np.asarray(view.image), unedited, context, key, labels)
         if self.region != ("none",):
             edited = self.composited(params, cam, row, edited, unedited, view, labels)
@@ -228,6 +248,15 @@ class EditSampler:
             self.label_cache[(cam, row)] = projected_labels(self.scene, [self.pairs[row]],
                                                             [cam])[0, 0]
         return self.label_cache[(cam, row)]
+
+    def rest_positions(self, cam: int, row: int) -> np.ndarray:
+        """(H, W, 3) the tracked mesh's rest positions projected into a training view
+        (`types.projected_rest_positions`, what a user has; computed once per view): where
+        stripes go."""
+        if (cam, row) not in self.rest_cache:
+            self.rest_cache[(cam, row)] = projected_rest_positions(self.scene, self.pairs[row],
+                                                                   cam)
+        return self.rest_cache[(cam, row)]
 
     def composited(self, params, cam, row, edited, unedited, view, labels):
         """The edit inside the region's soft mask at this view, the unedited image outside;

@@ -186,6 +186,21 @@ def projected_labels(scene: Scene, pairs, cameras, stride: int = 1) -> np.ndarra
     return np.stack(labels, axis=1)
 
 
+def projected_rest_positions(scene: Scene, pair, camera: int) -> np.ndarray:
+    """(H, W, 3) the tracked mesh's rest-pose (template) position at each pixel of one training
+    view ((sequence, frame) `pair` from `camera`), interpolated at the ray's hit; zeros where
+    the mesh is not hit. Like `projected_labels`, what a user has: head-space coordinates
+    that stick to the head whatever its expression and pose."""
+    from gae_jax.scene import raycast
+
+    vertices = posed_vertices(scene, [pair])[0]
+    hit = raycast.raycast_views(vertices, np.asarray(scene.model.faces),
+                                np.asarray(scene.model.v_template, np.float64),
+                                scene.face_regions, [scene.camera(camera)],
+                                background=(0.0, 0.0, 0.0))[0]
+    return np.asarray(hit.image, np.float32)
+
+
 def _strided(rays, height: int, width: int, stride: int):
     """Every `stride`-th pixel's ray of a camera's (H*W, 3) origins and directions."""
     return tuple(a.reshape(height, width, 3)[::stride, ::stride].reshape(-1, 3) for a in rays)

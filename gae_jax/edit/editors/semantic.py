@@ -18,7 +18,9 @@ target colour darkens the next target, without end).
 
 Regions come from `context["regions"]` (the training view's projected mesh labels, or labels
 rendered from the avatar's Gaussians); stripes need `context["canonical"]` (head-space positions
-per pixel) so that they stick to the head. A pixel on a thin uniform region's outline -- part
+per pixel: the tracked mesh's rest positions projected into the view, or the avatar's rendered
+ones) so that they stick to the head, and a pixel that a stripe's edge crosses takes its share
+of the stripe (`instructions.stripe_distance`), as a supersampled render does. A pixel on a thin uniform region's outline -- part
 region, part neighbour -- changes by the region's share of the recolour only, the share matted
 from the image (its old colour: albedo x light; the neighbour's: seen two pixels out), as a
 perfect editor's antialiased edge would (in proportion as the region is thin: 1 - its size
@@ -68,7 +70,7 @@ import numpy as np
 
 from gae_jax.edit.editors.base import as_image
 from gae_jax.edit.editors.shading import shading_map, trust_ratio
-from gae_jax.instructions import mode_of, parse, stripe_on
+from gae_jax.instructions import mode_of, parse, stripe_distance, stripe_on
 from gae_jax.model import head
 
 LUMA = np.array([0.299, 0.587, 0.114], np.float32)
@@ -120,21 +122,29 @@ class SemanticEditor:
             raise ValueError(f"context['regions'] must be {image.shape[:2]}, got {regions.shape}")
         region_id = head.REGION_ID[instruction.region]
         pattern = np.ones(regions.shape, bool)
+        distance = None
         if instruction.stripes:
             if "canonical" not in context:
                 raise ValueError("stripes need context['canonical'], (H, W, 3) head-space "
                                  "positions of the render")
-            pattern = stripe_on(np.asarray(context["canonical"])[..., 1], phase)
+            height = np.asarray(context["canonical"])[..., 1]
+            pattern = stripe_on(height, phase)
+            # a stripe's edge crosses pixels: each takes its share of the stripe
+            pixel = np.hypot(*np.gradient(height.astype(np.float64)))
+            distance = np.minimum(_signed_distance(regions == region_id),
+                                  stripe_distance(height, pixel, phase))
         mask = (regions == region_id) & pattern
+        if distance is None:
+            distance = _signed_distance(mask)
         keys = jax.random.split(key, 7)
         colour = np.asarray(instruction.colour, np.float32)
-        weight = mask.astype(np.float32)
+        weight = np.clip(distance + 0.5, 0.0, 1.0)
         size = min(1.0, thickness(mask) / FULL_SIZE_THICKNESS)
         if self.noise > 0:
             colour = colour + 0.12 * self.noise * np.asarray(
                 jax.random.normal(keys[0], (3,)), np.float32)
             reach = OUTLINE_JITTER * self.noise * border_size(regions, mask, size)
-            weight = _jitter(mask, reach, keys[1:6], self.noise)
+            weight = _jitter(mask, reach, keys[1:6], self.noise, distance)
         colour = np.clip(colour, 0, 1)
         shade, light, uniform = self.shading(source, regions, context.get("normals"),
                                              instruction.region)
@@ -315,21 +325,23 @@ def _outline_band(mask: np.ndarray) -> np.ndarray:
     return cv2.dilate(m, kernel).astype(bool) & ~cv2.erode(m, kernel).astype(bool)
 
 
-def _jitter(mask: np.ndarray, reach: np.ndarray, keys, noise: float) -> np.ndarray:
+def _jitter(mask: np.ndarray, reach: np.ndarray, keys, noise: float,
+            distance: np.ndarray) -> np.ndarray:
     """(H, W) float weight in [0, 1]: `mask` grown (or shrunk) and shifted by a grow and a shift
     drawn uniformly in [-1, 1], each pixel's outline moving by them times its (H, W) `reach` in
-    px (sub-pixel: the signed distance is sampled with linear interpolation and clipped to a
-    one-pixel ramp), then with probability 0.25 noise cut to a random half."""
+    px (sub-pixel: its (H, W) signed `distance`, positive inside, is sampled with linear
+    interpolation and clipped to a one-pixel ramp), then with probability 0.25 noise cut to a
+    random half."""
     import cv2
 
-    weight = mask.astype(np.float32)
+    weight = np.clip(distance + 0.5, 0.0, 1.0)
     reach = np.broadcast_to(np.asarray(reach, np.float32), mask.shape)
     if reach.max() > 0 and mask.any():
         grow = float(jax.random.uniform(keys[0], (), minval=-1.0, maxval=1.0))
         dy, dx = (float(v) for v in jax.random.uniform(keys[1], (2,), minval=-1.0,
                                                          maxval=1.0))
         yy, xx = np.mgrid[:mask.shape[0], :mask.shape[1]].astype(np.float32)
-        moved = cv2.remap(_signed_distance(mask), xx - dx * reach, yy - dy * reach,
+        moved = cv2.remap(distance, xx - dx * reach, yy - dy * reach,
                           cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         weight = np.clip(moved + grow * reach + 0.5, 0.0, 1.0)
     if float(jax.random.uniform(keys[2])) < 0.25 * noise and mask.any():
