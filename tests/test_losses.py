@@ -95,3 +95,43 @@ def test_region_loss_is_the_per_pixel_l1_to_the_labels_codes(x64):
                 (jnp.asarray(weights),), order=1, modes=("rev",))
     exact = codes[np.maximum(labels + 1, 0)]
     assert float(losses.region_loss(jnp.asarray(exact), jnp.asarray(labels), codes)) == 0.0
+
+
+def test_change_coherence_pulls_each_member_to_the_colour_of_its_regions_mean_change(x64):
+    """Value against a loop over the members: the squared distance of each member's colour from
+    (c0 + f) exp(mean change of its group's members) - f; gradient: finite differences with
+    those targets frozen (the prior pulls each member, not the means), zero off the members."""
+    rng = np.random.default_rng(0)
+    origin = rng.uniform(0, 1, (12, 3))
+    colors = rng.uniform(0, 1, (12, 3))
+    members = np.array([1, 1, 0, 1, 0, 1, 1, 1, 0, 1, 1, 0], bool)
+    groups = np.array([0, 2, 2, 0, 1, 2, 0, 2, 1, 2, 0, 0])
+    f = losses.CHANGE_FLOOR
+    change = np.log(colors + f) - np.log(origin + f)
+    target = np.zeros_like(colors)
+    for i in range(12):
+        same = members & (groups == groups[i])
+        mean = change[same].mean(0) if same.any() else np.zeros(3)
+        target[i] = (origin[i] + f) * np.exp(mean) - f
+    expected = sum(((colors[i] - target[i]) ** 2).sum() for i in range(12) if members[i])
+    args = (jnp.asarray(colors), jnp.asarray(origin), jnp.asarray(members), jnp.asarray(groups))
+    assert float(losses.change_coherence(*args, 3)) == pytest.approx(expected, rel=1e-10)
+    grad = np.asarray(jax.grad(losses.change_coherence)(*args, 3))
+
+    def frozen(c):
+        return (((c - target) ** 2) * members[:, None]).sum()
+
+    eps = 1e-6
+    numeric = np.zeros_like(colors)
+    for idx in np.ndindex(colors.shape):
+        step = np.zeros_like(colors)
+        step[idx] = eps
+        numeric[idx] = (frozen(colors + step) - frozen(colors - step)) / (2 * eps)
+    np.testing.assert_allclose(grad, numeric, rtol=1e-6, atol=1e-9)
+    assert not grad[~members].any()
+    # members that share their group's change (in the floored ratio) are at rest
+    ratios = np.exp(np.array([[-0.7, 0.2, -1.5], [0.3, 0.3, 0.3], [-2.0, 0.0, 0.5]]))
+    shared = (origin + f) * ratios[groups] - f
+    rest = losses.change_coherence(jnp.asarray(shared), *args[1:], 3)
+    assert float(rest) == pytest.approx(0.0, abs=1e-20)
+    assert float(losses.change_coherence(jnp.asarray(origin * 0.5), *args[1:], 3)) > 0

@@ -261,3 +261,13 @@ def test_a_checkpoint_written_before_a_field_existed_reads_it_as_that_run_behave
     loop.check_config(saved, edit_config.EditConfig(ssim_weight=1.0), "ckpt")
     with pytest.raises(ValueError, match=r"ssim_weight \(there 1.0, here 0.0\)"):
         loop.check_config(saved, config, "ckpt")
+
+
+def test_a_run_from_before_the_coherence_prior_reads_as_without_it():
+    saved = json.loads(json.dumps(dataclasses.asdict(edit_config.EditConfig())))
+    del saved["coherence_weight"]
+    loop.check_config(saved, edit_config.EditConfig(coherence_weight=0.0), "ckpt")
+    with pytest.raises(ValueError, match=r"coherence_weight \(there 0.0, here 0.0001\)"):
+        loop.check_config(saved, edit_config.EditConfig(), "ckpt")
+    with pytest.raises(ValueError, match="coherence_weight must be >= 0"):
+        edit_config.EditConfig(coherence_weight=-1.0)

@@ -19,6 +19,7 @@ from gae_jax.evaluation import protocols, truth
 from gae_jax.fit.config import ReconstructConfig
 from gae_jax.fit.fit import initial_avatar
 from gae_jax.model import head
+from gae_jax.render import losses
 from gae_jax.run import job
 from gae_jax.scene import rig as rigs
 from gae_jax.scene import synthetic
@@ -568,3 +569,47 @@ def test_a_resumed_run_judges_partial_edits_as_the_uninterrupted_one(base, tmp_p
                                   editor=HalfEditor(partial))
     for a, b in zip(jax.tree_util.tree_leaves(full), jax.tree_util.tree_leaves(resumed)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_coherence_pulls_an_unseen_region_gaussian_to_the_regions_change(base):
+    """With no data term (recon_weight 0, no GAN), the change-coherence prior alone moves the
+    colours: a region Gaussian left at its old colour while the others were halved
+    is pushed darker, every member moves towards the colour its region's mean change (over the
+    members of its region label) gives it,
+    and nothing moves at step 0 (the prior's ramp) or without the prior."""
+    s = session_for(base, adversarial=False, recon_weight=0.0)
+    params = s.original.trainable()
+    origin = np.asarray(params["colors"])
+    members = np.zeros(len(origin), bool)
+    members[: len(origin) // 2] = True
+    halved = np.where(members[:, None], origin * 0.5, origin)
+    halved[0] = origin[0]  # a member left as it was
+    moved = dict(params, colors=jnp.asarray(halved, jnp.float32))
+    render = rigs.render_bound(moved, s.rig, 1, 2, blend=s.step_config.blend).image
+    batch = dict(cams=np.array([2], np.int32), frames=np.array([1], np.int32),
+                 target=np.asarray(render)[None], neighbour=np.asarray(render)[None])
+
+    def colour_step(weight, at_step):
+        config = edit_config.StepConfig.of(dataclasses.replace(s.config,
+                                                               coherence_weight=weight))
+        state = step_module.initial_state(config, params, (SIZE, SIZE), jax.random.PRNGKey(0))
+        state = dataclasses.replace(state, params=jax.tree_util.tree_map(jnp.array, moved),
+                                    step=jnp.int32(at_step))
+        after, _ = step_module.make_edit_step(config)(state, s.rig, batch, jnp.asarray(members))
+        return np.asarray(after.params["colors"]) - halved
+
+    decay = s.config.lr_decay_steps
+    for weight, at_step in ((0.0, decay), (1e-4, 0)):
+        np.testing.assert_allclose(colour_step(weight, at_step), 0.0, atol=1e-7)
+    change = colour_step(1e-4, decay)
+    assert (change[0] < -1e-4).all()  # the unmoved member goes the region's way
+    assert not change[~members].any()
+    f = losses.CHANGE_FLOOR
+    d = np.log(halved + f) - np.log(origin + f)
+    groups = np.asarray(s.original.regions)
+    means = np.stack([d[members & (groups == g)].mean(0) if (members & (groups == g)).any()
+                      else np.zeros(3) for g in range(len(head.REGIONS))])
+    pull = halved - (origin + f) * np.exp(means[groups]) + f  # the gradient up to 2 w
+    # Adam's first step moves each colour against its gradient's sign
+    signs = np.sign(change[members & (np.abs(pull) > 1e-3).all(1)])
+    np.testing.assert_array_equal(signs, -np.sign(pull[members & (np.abs(pull) > 1e-3).all(1)]))

@@ -4,14 +4,15 @@ presets, and the small hashable `StepConfig` that the jitted step reads.
 Presets: `paper` (the paper's settings: forward WABE, L1 + SSIM, all rates 1e-2, 1000
 iterations, no edit region), `fast` (the README default: the prompt's region, targets composited
 over the unedited image, standard blending, L1, rates decaying to 3 %, the average of the
-iterates released, partial 2D edits made again), the ablations `wabe` (forward WABE), `wabe_grad`
+iterates released, partial 2D edits made again, each region's colour change held coherent),
+the ablations `wabe` (forward WABE), `wabe_grad`
 (WABE on the gradient), `ssim` (the paper's L1 + SSIM), `no_adv`, `no_region` (every Gaussian may
 move), `previous` (the default before region-aware editing: no region, the editor keeping the
 render, WABE on the gradient, L1 + SSIM, colour rate 1e-2 with Adam eps 1e-4, no decay), `code`
 (the released code's gradient mask and pairs), and the baseline `in2n` (no GAN,
 Instruct-NeRF2NeRF's dataset update, no region); `code` and `in2n` release the last iterate
-with rates decaying to 10 % and keep every 2D edit, as the default did before it averaged its
-iterates.
+with rates decaying to 10 %, keep every 2D edit and hold no colour change coherent, as the
+default did before it averaged its iterates.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ class EditConfig:
     # What a checkpoint or benchmark record written before a field existed did, where that is
     # not the field's default: the loss was L1 + SSIM before `ssim_weight`.
     ABSENT_MEANS: ClassVar[dict] = {"ssim_weight": 1.0, "average_decay": 0.0,
-                                    "edit_retries": 0}
+                                    "edit_retries": 0, "coherence_weight": 0.0}
 
     prompt: str = "turn the lips blue"
     editor: str = "semantic"
@@ -63,6 +64,7 @@ class EditConfig:
     d_weight: float = 0.01
     g_weight: float = 0.01
     const_weight: float = 10.0
+    coherence_weight: float = 1e-4
     lr: float = 1e-1
     lr_geometry: float = 1e-3
     lr_means: float = 1e-4
@@ -105,6 +107,8 @@ class EditConfig:
         if self.gan_max_side and self.gan_max_side < gan.MIN_SIZE:
             raise ValueError(f"gan_max_side must be 0 (full resolution) or >= {gan.MIN_SIZE}, "
                              f"got {self.gan_max_side}")
+        if self.coherence_weight < 0:
+            raise ValueError(f"coherence_weight must be >= 0, got {self.coherence_weight}")
         if self.beta < 0:
             raise ValueError(f"beta must be >= 0, got {self.beta}")
         region.parse_region(self.region)
@@ -153,6 +157,9 @@ HELP = {
     "d_weight": "lambda_2 (discriminator loss)",
     "g_weight": "lambda_3 (generator loss)",
     "const_weight": "lambda_4 (position / scale regulariser)",
+    "coherence_weight": "weight of the prior pulling each edited Gaussian's colour change "
+                        "(a ratio; a difference near black) towards its region's mean change, "
+                        "rising to full as the rates decay (0: none)",
     "lr": "Adam learning rate of colours",
     "lr_geometry": "Adam learning rate of opacities, scales and rotations",
     "lr_means": "Adam learning rate of local positions",
@@ -182,19 +189,21 @@ PRESETS = {
                   recon_weight=10.0, ssim_weight=1.0, d_weight=0.01, g_weight=0.01,
                   const_weight=10.0, lr=1e-2, lr_geometry=1e-2, lr_means=1e-2, lr_final=1.0,
                   adam_eps=1e-15, region="none", editor_keeps="render", average_decay=0.0,
-                  edit_retries=0),
+                  edit_retries=0, coherence_weight=0.0),
     "fast": dict(),
     "no_region": dict(region="none"),
     "previous": dict(region="none", editor_keeps="render", blend="wabe_grad", ssim_weight=1.0,
-                     lr=1e-2, lr_final=1.0, adam_eps=1e-4, average_decay=0.0, edit_retries=0),
+                     lr=1e-2, lr_final=1.0, adam_eps=1e-4, average_decay=0.0, edit_retries=0,
+                     coherence_weight=0.0),
     "wabe": dict(blend="wabe"),
     "wabe_grad": dict(blend="wabe_grad"),
     "ssim": dict(ssim_weight=1.0),
     "no_adv": dict(adversarial=False),
     "code": dict(pair_mode="code", gradient_mask="code", region="none", editor_keeps="render",
-                 ssim_weight=1.0, lr_final=0.1, average_decay=0.0, edit_retries=0),
+                 ssim_weight=1.0, lr_final=0.1, average_decay=0.0, edit_retries=0,
+                 coherence_weight=0.0),
     "in2n": dict(adversarial=False, dataset_update=True, region="none", lr_final=0.1,
-                 average_decay=0.0, edit_retries=0),
+                 average_decay=0.0, edit_retries=0, coherence_weight=0.0),
 }
 
 
@@ -217,6 +226,7 @@ class StepConfig:
     d_weight: float
     g_weight: float
     const_weight: float
+    coherence_weight: float
     lr: float
     lr_geometry: float
     lr_means: float
