@@ -613,3 +613,14 @@ def test_coherence_pulls_an_unseen_region_gaussian_to_the_regions_change(base):
     # Adam's first step moves each colour against its gradient's sign
     signs = np.sign(change[members & (np.abs(pull) > 1e-3).all(1)])
     np.testing.assert_array_equal(signs, -np.sign(pull[members & (np.abs(pull) > 1e-3).all(1)]))
+
+
+def test_base_colour_is_plain_rgb_or_the_sh_degree_zero_band():
+    """Plain RGB passes through; SH colours give 0.5 + C0 x DC (3DGS's SH2RGB), floored at 0."""
+    rgb = jnp.asarray(np.random.default_rng(0).uniform(0, 1, (5, 3)), jnp.float32)
+    np.testing.assert_array_equal(step_module.base_colour(rgb), rgb)
+    coeffs = np.zeros((5, 16, 3), np.float32)
+    coeffs[:, 0] = [[1.0, -1.0, 0.0], [-3.0, 0.2, 0.5], [0, 0, 0], [2.0, 2.0, 2.0], [-1, 1, -1]]
+    coeffs[:, 1:] = 0.3  # higher bands do not enter
+    expected = np.maximum(0.5 + 0.28209479177387814 * coeffs[:, 0], 0.0)
+    np.testing.assert_allclose(step_module.base_colour(jnp.asarray(coeffs)), expected, rtol=1e-6)

@@ -43,7 +43,7 @@ class EditState:
     d_opt_state: optax.OptState
     step: jax.Array
     average: dict
-    origin: jax.Array  # the colours before the edit
+    origin: jax.Array  # (N, 3) base RGB before the edit (`base_colour`)
 
 
 def avatar_optimizer(config: StepConfig) -> optax.GradientTransformation:
@@ -80,7 +80,8 @@ def initial_state(config: StepConfig, params: dict, image_size: tuple, key) -> E
     d_params = gan.init_params(key, image_size)
     return EditState(params, avatar_optimizer(config).init(params), d_params,
                      discriminator_optimizer(config).init(d_params), jnp.int32(0),
-                     jax.tree_util.tree_map(jnp.array, params), jnp.array(params["colors"]))
+                     jax.tree_util.tree_map(jnp.array, params),
+                     jnp.array(base_colour(jnp.asarray(params["colors"]))))  # a copy: donated
 
 
 def average_params(average: dict, params: dict, step: jax.Array, decay: float) -> dict:
@@ -173,7 +174,7 @@ def make_edit_step(config: StepConfig):
                                            + losses.scale_regulariser(p["log_scales"], seen))
             if config.coherence_weight > 0:
                 value = value + coherence_weight(config, state.step) * losses.change_coherence(
-                    base_colour(p["colors"]), base_colour(state.origin), editable, rig.regions,
+                    base_colour(p["colors"]), state.origin, editable, rig.regions,
                     len(head.REGIONS))
             return value
 

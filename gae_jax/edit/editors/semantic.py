@@ -20,12 +20,12 @@ Regions come from `context["regions"]` (the training view's projected mesh label
 rendered from the avatar's Gaussians); stripes need `context["canonical"]` (head-space positions
 per pixel: the tracked mesh's rest positions projected into the view, or the avatar's rendered
 ones) so that they stick to the head, and a pixel that a stripe's edge crosses takes its share
-of the stripe (`instructions.stripe_distance`), as a supersampled render does. A pixel on a thin uniform region's outline -- part
-region, part neighbour -- changes by the region's share of the recolour only, the share matted
-from the image (its old colour: albedo x light; the neighbour's: seen two pixels out), as a
-perfect editor's antialiased edge would (in proportion as the region is thin: 1 - its size
-factor below); a textured region's old colour is not known, and its outline is painted as its
-inside, as a wide region's is.
+of the stripe (`instructions.stripe_distance`), as a supersampled render does. A pixel on a
+thin uniform region's outline -- part region, part neighbour -- changes by the region's share
+of the recolour only, the share matted from the image (its old colour: albedo x light; the
+neighbour's: seen two pixels out), as a perfect editor's antialiased edge would (in proportion
+as the region is thin: 1 - its size factor below); a textured region's old colour is not
+known, and its outline is painted as its inside, as a wide region's is.
 
 Outside the edited region the editor returns the render it edits (`keeps="render"`, the default:
 a diffusion editor's output follows its input) or the original image (`keeps="original"`: what
