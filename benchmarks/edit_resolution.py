@@ -58,7 +58,8 @@ def scaled_scene(scene, size: int):
     regions = {n: resize(v.astype(np.int16), cv2.INTER_NEAREST).astype(v.dtype)
                for n, v in scene.regions.items() if n in train}
     return dataclasses.replace(scene, intrinsics=intrinsics.astype(scene.intrinsics.dtype),
-                               width=size, height=size, images=images, regions=regions)
+                               width=size, height=size, images=images, regions=regions,
+                               region_samples={})  # centre labels only at the new size
 
 
 def time_size(scene, original, size: int, iterations: int, variants: list) -> list:

@@ -37,7 +37,9 @@ HELP = dict(
     dssim_weight="weight of D-SSIM against L1", position_weight="position regulariser weight",
     scale_weight="scale regulariser weight", region_weight="weight of the region loss: the "
     "rendered regions against the tracked mesh's labels projected into the training views "
-    "(0: colour alone)", sh_degree="SH degree (empty: plain RGB)",
+    "(0: colour alone)", label_samples="the region loss reads the labels of several rays "
+    "in each pixel, so that a pixel an outline crosses asks for the regions' mix (false: "
+    "the centre ray's label alone)", sh_degree="SH degree (empty: plain RGB)",
     sh_every="steps between SH band growths", densify_every="steps between densify rounds "
     "(0: never)", densify_from="first densify step", densify_until="last densify step as a "
     "fraction of the iterations", grad_threshold="screen-gradient threshold of densification",

@@ -143,9 +143,10 @@ def test_semantic_edit_of_the_truth_matches_the_ray_cast_ideal_edit():
 FITTED_SHADING_ERROR = 0.02
 
 
-def _makehuman_view(size, distance, jaw_open):
-    """The MakeHuman head from the near-frontal camera: its ray-cast image, region labels,
-    interpolated head-space normals, and a function giving the ideal edit of a prompt."""
+def _makehuman_view(size, distance, jaw_open, supersample=1):
+    """The MakeHuman head from the near-frontal camera: its ray-cast image, region labels
+    (and each ray's, `samples`), interpolated head-space normals, and a function giving the
+    ideal edit of a prompt, `supersample` x `supersample` rays per pixel."""
     import dataclasses
 
     import jax.numpy as jnp
@@ -164,7 +165,7 @@ def _makehuman_view(size, distance, jaw_open):
         flame.zero_params(model), expr=jnp.asarray(expr, jnp.float32))))
     faces = np.asarray(model.faces)
     truth = raycast(verts, faces, synthetic.shaded_colors(model, assets.vertex_colors, shape),
-                    assets.face_regions, camera)
+                    assets.face_regions, camera, supersample=supersample)
     normals = raycast(verts, faces, av.vertex_normals(np.asarray(model.v_template), faces),
                       assets.face_regions, camera).image
     normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-9)
@@ -173,7 +174,7 @@ def _makehuman_view(size, distance, jaw_open):
         albedo = instructions.ideal_albedo(instructions.parse(prompt), assets.vertex_colors,
                                            faces, assets.face_regions, verts)
         return raycast(verts, faces, synthetic.shaded_colors(model, albedo, shape),
-                       assets.face_regions, camera).image
+                       assets.face_regions, camera, supersample=supersample).image
 
     return truth, normals, ideal
 
@@ -504,3 +505,103 @@ def test_on_the_outline_only_the_regions_share_of_a_pixel_is_recoloured():
     np.testing.assert_allclose(out[4, 6:10], np.tile(expected, (4, 1)), atol=2e-3)
     np.testing.assert_allclose(out[7, 6:10], np.tile(blue * shade, (4, 1)), atol=2e-3)
     np.testing.assert_allclose(out[:3], image[:3], atol=1e-6)
+
+
+# Against the ray-cast ideal, the outline pixels' mean absolute error per channel may exceed the
+# inside's by this much when the editor knows how much of each pixel the region covers: the
+# region's colour and shading there are those of the nearest pixel inside, a pixel away (on
+# the painted hair, another stroke).
+OUTLINE_EXCESS_WITH_SAMPLES = 0.02
+
+
+@pytest.mark.parametrize("size, distance, jaw_open, prompt", [
+    (128, 0.68, 0.0, "turn the lips blue"), (128, 0.68, 0.0, "make the skin light blue"),
+    (128, 0.68, 0.0, "make the hair blonde"), (192, 0.45, 0.8, "make the teeth yellow"),
+    (192, 0.45, 0.8, "make the whites of the eyes dark red")])
+def test_with_label_samples_the_outline_is_recoloured_as_the_supersampled_ideal(
+        size, distance, jaw_open, prompt):
+    """The MakeHuman head ray-cast with 2 x 2 rays per pixel (as the scene's truth), and its
+    ideal edit the same way: given each ray's region (`samples`) and the normals, the edit of
+    a pixel the outline crosses changes only the region's share of it, so the outline pixels
+    come within `OUTLINE_EXCESS_WITH_SAMPLES` of the inside's error; with the centre labels
+    alone they take all or nothing of the new colour, at least twice as far off. A thin
+    region's light is judged on the pixels its rays cover whole (teeth, sclera), not on those
+    it shares with a darker neighbour."""
+    truth, normals, ideal_of = _makehuman_view(size, distance, jaw_open, supersample=2)
+    instruction = instructions.parse(prompt)
+    ideal = ideal_of(prompt)
+    region = head.REGION_ID[instruction.region]
+    share = (truth.samples == region).mean(-1)
+    outline = (share > 0) & (share < 1)
+    assert outline.sum() > 20
+    errors = {}
+    for name, context in (("samples", dict(regions=truth.regions, samples=truth.samples,
+                                           normals=normals)),
+                          ("centre", dict(regions=truth.regions, normals=normals))):
+        out = make_editor("semantic").edit(truth.image, truth.image, prompt,
+                                           jax.random.PRNGKey(0), context)
+        errors[name] = float(np.abs(out - ideal)[outline].mean())
+        errors[name + " inside"] = float(np.abs(out - ideal)[share == 1].mean())
+        if name == "samples":
+            untouched = share == 0
+            np.testing.assert_array_equal(out[untouched], truth.image[untouched])
+    assert errors["samples"] < errors["samples inside"] + OUTLINE_EXCESS_WITH_SAMPLES, errors
+    assert errors["samples"] < 0.5 * errors["centre"], errors
+    assert errors["samples inside"] <= errors["centre inside"] + 1e-3, errors
+
+
+def test_share_distance_puts_a_straight_outline_where_the_rays_see_it_and_moves_it_whole():
+    """A half-plane whose edge crosses pixel column 5 at 0.25 of its width (every ray of the
+    columns before it hits, none after): the weight clip(d + 1/2, 0, 1) is the rays' share in
+    every pixel; the field rises one pixel per pixel across the outline, so that shifting it by
+    a third of a pixel moves a third of a pixel of coverage from column to column (the centre
+    labels' field, flat at 1/2 on the pixels next to the outline, would not)."""
+    k = 4
+    fine = np.zeros((6 * k, 10 * k), bool)
+    fine[:, :5 * k + 1] = True  # one of the 4 ray columns of pixel column 5
+    hits = fine.reshape(6, k, 10, k).transpose(0, 2, 1, 3).reshape(6, 10, k * k)
+    share = hits.mean(-1)
+    d = semantic._share_distance(hits, share)
+    np.testing.assert_allclose(np.clip(d + 0.5, 0, 1), share, atol=1e-6)
+    np.testing.assert_allclose(d[:, 5], 0.25 - 0.5, atol=1e-6)
+    np.testing.assert_allclose(np.diff(d[0, 2:9]), -1.0, atol=0.13)
+    moved = np.clip(d + 1.0 / 3.0 + 0.5, 0, 1)  # the outline a third of a pixel further out
+    np.testing.assert_allclose(moved[0, 5], 0.25 + 1 / 3, atol=1e-6)
+
+
+def test_nearest_takes_the_colour_of_the_closest_pixel_the_region_covers_whole():
+    rng = np.random.default_rng(3)
+    pure = rng.random((20, 24)) < 0.08
+    source = rng.random((20, 24, 3)).astype(np.float32)
+    shade = rng.random((20, 24)).astype(np.float32)
+    old, near = semantic._nearest(source, shade, pure, np.zeros_like(source), shade * 0)
+    ys, xs = np.nonzero(pure)
+    yy, xx = np.mgrid[:20, :24]
+    distance = np.hypot(yy[..., None] - ys, xx[..., None] - xs)
+    taken = np.argmax(np.all(source[ys, xs][None, None] == old[:, :, None], -1), -1)
+    # the 5x5 chamfer mask finds a pixel within 0.1 px of the truly nearest one
+    assert np.all(distance[yy, xx, taken] <= distance.min(-1) + 0.1)
+    np.testing.assert_array_equal(near, shade[ys[taken], xs[taken]])
+    fallback = np.full_like(source, 0.5)
+    got, _ = semantic._nearest(source, shade, np.zeros_like(pure), fallback, shade)
+    np.testing.assert_array_equal(got, fallback)
+
+
+def test_a_steady_share_of_the_outline_stays_where_the_labels_put_it():
+    """`_jitter` with steady 1 returns the unmoved weight whatever the key (but for the random
+    half cut of a partial edit), with steady 0 the moved one, and between them their blend."""
+    mask = np.zeros((30, 30), bool)
+    mask[10:20, 8:22] = True
+    distance = semantic._signed_distance(mask)
+    clean = np.clip(distance + 0.5, 0, 1)
+    reach = np.full(mask.shape, 1.5, np.float32)
+    for k in range(6):
+        keys = jax.random.split(jax.random.PRNGKey(k), 5)
+        cut = float(jax.random.uniform(keys[2])) < 0.25
+        moved = semantic._jitter(mask, reach, keys, 1.0, distance, steady=0.0)
+        kept = semantic._jitter(mask, reach, keys, 1.0, distance, steady=1.0)
+        half = semantic._jitter(mask, reach, keys, 1.0, distance, steady=0.5)
+        if not cut:
+            np.testing.assert_array_equal(kept, clean)
+        np.testing.assert_allclose(half, 0.5 * (moved + kept), atol=1e-6)
+        assert cut or np.abs(moved - clean).max() > 0.3  # the outline did move

@@ -83,7 +83,8 @@ def test_region_loss_is_the_per_pixel_l1_to_the_labels_codes(x64):
     codes = losses.region_codes(3)
     weights = rng.uniform(0, 0.6, (5, 4, codes.shape[1]))
     labels = np.array([[0, 1, 2, -1]] * 4 + [[-2, -2, 0, 1]])
-    value = float(losses.region_loss(jnp.asarray(weights), jnp.asarray(labels), codes))
+    value = float(losses.region_loss(jnp.asarray(weights), jnp.asarray(labels[..., None]),
+                                     codes))
     expected = 0.0
     for y in range(5):
         for x in range(4):
@@ -91,10 +92,40 @@ def test_region_loss_is_the_per_pixel_l1_to_the_labels_codes(x64):
                 continue  # unknown: not counted
             expected += np.abs(weights[y, x] - codes[labels[y, x] + 1]).sum()
     assert value == pytest.approx(expected / 20)
-    check_grads(lambda w: losses.region_loss(w, jnp.asarray(labels), codes),
+    check_grads(lambda w: losses.region_loss(w, jnp.asarray(labels[..., None]), codes),
                 (jnp.asarray(weights),), order=1, modes=("rev",))
     exact = codes[np.maximum(labels + 1, 0)]
-    assert float(losses.region_loss(jnp.asarray(exact), jnp.asarray(labels), codes)) == 0.0
+    assert float(losses.region_loss(jnp.asarray(exact), jnp.asarray(labels[..., None]),
+                                    codes)) == 0.0
+
+
+def test_region_loss_asks_an_edge_pixel_for_the_mix_its_samples_say(x64):
+    """With several label samples per pixel the target is the mean of their codes: a pixel
+    half lips, half skin is matched exactly by an even mix of the two codes and not by either
+    alone; a pixel with one unknown sample is not counted."""
+    rng = np.random.default_rng(1)
+    codes = losses.region_codes(4)
+    samples = rng.integers(-1, 4, (6, 5, 4))
+    samples[0, 0] = [0, 0, -2, 1]  # one unknown ray: the pixel is left out
+    weights = rng.uniform(0, 0.8, (6, 5, codes.shape[1]))
+    value = float(losses.region_loss(jnp.asarray(weights), jnp.asarray(samples), codes))
+    expected = 0.0
+    for y in range(6):
+        for x in range(5):
+            if (samples[y, x] < -1).any():
+                continue
+            target = np.mean([codes[s + 1] for s in samples[y, x]], axis=0)
+            expected += np.abs(weights[y, x] - target).sum()
+    assert value == pytest.approx(expected / 30)
+    check_grads(lambda w: losses.region_loss(w, jnp.asarray(samples), codes),
+                (jnp.asarray(weights),), order=1, modes=("rev",))
+    half = np.array([[[0, 0, 1, 1]]])
+    mix = 0.5 * (codes[1] + codes[2])
+    assert float(losses.region_loss(jnp.asarray(mix[None, None]), jnp.asarray(half),
+                                    codes)) == 0.0
+    for alone in (codes[1], codes[2]):
+        assert float(losses.region_loss(jnp.asarray(alone[None, None]), jnp.asarray(half),
+                                        codes)) > 0.5
 
 
 def test_change_coherence_pulls_each_member_to_the_colour_of_its_regions_mean_change(x64):

@@ -88,3 +88,34 @@ def test_a_captures_labels_are_its_tracked_mesh_projected_into_each_view(exporte
     assert set(np.unique(mine)) <= set(range(-1, len(head.REGIONS)))
     coarse = types.training_labels(capture, stride=2)
     np.testing.assert_array_equal(coarse, projected[..., ::2, ::2])
+
+
+def test_a_captures_label_samples_are_its_tracked_mesh_projected_along_each_ray(exported):
+    """The capture's label samples (4 rays per pixel, ray-cast from its posed mesh) are the
+    synthetic scene's stored samples (its 2 x 2 colour rays' regions) at every ray but those
+    that miss the mesh inside a foreground pixel, which a capture cannot tell from hair the
+    mesh does not model (unknown); the fit reads a capture's centre labels (one per pixel),
+    and a scene without stored samples falls back to its centre labels too."""
+    import dataclasses
+
+    from gae_jax.model import head
+    from gae_jax.scene import types
+
+    scene, folder, _ = exported
+    model, assets = head.make_head("procedural")
+    capture = nersemble.load_scene(folder, model, assets.face_regions)
+    cams = np.asarray(capture.train_cameras)
+    mine = types.projected_label_samples(capture, types.training_frames(capture), cams)
+    expected = types.projected_label_samples(scene, types.training_frames(scene), cams)
+    assert mine.shape == expected.shape and mine.shape[-1] == types.LABEL_SUPERSAMPLE ** 2
+    known = mine != types.UNKNOWN_REGION
+    np.testing.assert_array_equal(mine[known], expected[known])
+    assert np.all(expected[~known] == -1) and np.mean(~known) < 0.02
+    edge = (expected != expected[..., :1]).any(-1)
+    assert edge.any()  # some pixels are shared by regions, and the samples say so
+    # the fit's labels of a capture's many views: one per pixel
+    np.testing.assert_array_equal(types.training_label_samples(capture),
+                                  types.training_labels(capture)[..., None])
+    bare = dataclasses.replace(scene, region_samples={})
+    np.testing.assert_array_equal(types.training_label_samples(bare),
+                                  types.training_labels(scene)[..., None])

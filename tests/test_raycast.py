@@ -74,6 +74,11 @@ def test_supersampled_edge_pixel_is_the_covered_fraction():
     assert np.all(out.regions[:, 10] == -1) and np.all(out.regions[:, 9] == 1)
     single = raycast(verts, faces, colors, np.array([1, 1]), camera, background=(1, 1, 1))
     np.testing.assert_array_equal(single.regions, out.regions)
+    # Each colour ray's region is kept: 2 of the edge pixel's 5 columns of rays hit the square.
+    assert out.samples.shape == (12, 20, 25) and out.samples.dtype == np.int8
+    assert np.all((out.samples[:, 10] == 1).sum(-1) == 10)
+    assert np.all(out.samples[:, :10] == 1) and np.all(out.samples[:, 11:] == -1)
+    np.testing.assert_array_equal(single.samples[..., 0], single.regions)
     with pytest.raises(ValueError, match="supersample"):
         raycast(verts, faces, colors, np.array([1, 1]), camera, supersample=0)
 
@@ -102,7 +107,7 @@ def test_precomputed_rays_give_the_same_images_and_must_match_the_cameras():
         reused = raycast_views(verts, faces, colors, regions, cameras, supersample=supersample,
                                rays=rays)
         for a, b in zip(fresh, reused):
-            for field in ("image", "regions", "depth", "hit", "faces"):
+            for field in ("image", "regions", "depth", "hit", "faces", "samples"):
                 np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
     with pytest.raises(ValueError, match="rays holds 1 cameras"):
         raycast_views(verts, faces, colors, regions, cameras, rays=ray_sets(cameras[:1], 1))

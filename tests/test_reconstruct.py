@@ -149,7 +149,7 @@ def test_a_fit_step_keeps_plain_colours_in_the_unit_range(scene):
     white = jnp.full((scene.num_cameras, 1, scene.height, scene.width, 3), 255, jnp.uint8)
     fit_step = step.make_fit_step(FitStepConfig.of(config))
     state = step.initial_state(params, FitStepConfig.of(config), jax.random.PRNGKey(2))
-    no_labels = jnp.zeros((1, 1, 1, 1), jnp.int8)
+    no_labels = jnp.zeros((1, 1, 1, 1, 1), jnp.int8)
     state, _ = fit_step(state, rig, white, no_labels,
                         jnp.arange(scene.num_cameras, dtype=jnp.int32))
     colors = np.asarray(state.params["colors"])
@@ -163,14 +163,14 @@ def test_the_region_loss_teaches_each_pixel_its_region(scene):
     import jax.numpy as jnp
 
     from gae_jax.render import losses
-    from gae_jax.scene.types import training_labels
+    from gae_jax.scene.types import training_label_samples
 
     results = {}
     for weight in (0.0, 0.3):
         fitted, history = fit(scene, ReconstructConfig(iterations=150, seed=2,
                                                         region_weight=weight))
         rig = rigs.put_rig(scene, fitted, posed_vertices(scene, training_frames(scene)))
-        labels = jnp.asarray(training_labels(scene))
+        labels = jnp.asarray(training_label_samples(scene))
         codes = losses.region_codes(len(head.REGIONS))
         onehot = jnp.asarray(codes)[rig.regions + 1]
         region, photo = [], []

@@ -198,10 +198,13 @@ def test_corruption_sweep_over_every_file_the_project_reads(small, tmp_path):
     good = scene_file.read_bytes()
     for i, broken in enumerate(corrupted(good, 3)):
         scene_file.write_bytes(broken)
-        images, _ = synthetic._read_cache(str(scene_file), scene.sequences, (6, 2, 32))
+        images, _, samples = synthetic._read_cache(str(scene_file), scene.sequences,
+                                                   (6, 2, 32))
         if images is not None:
             for name in scene.images:  # a zip member's CRC catches any flipped data byte
                 np.testing.assert_array_equal(images[name], scene.images[name], f"case {i}")
+                np.testing.assert_array_equal(samples[name], scene.region_samples[name],
+                                              f"case {i}")
     scene_file.write_bytes(good)
 
 

@@ -624,3 +624,34 @@ def test_base_colour_is_plain_rgb_or_the_sh_degree_zero_band():
     coeffs[:, 1:] = 0.3  # higher bands do not enter
     expected = np.maximum(0.5 + 0.28209479177387814 * coeffs[:, 0], 0.0)
     np.testing.assert_allclose(step_module.base_colour(jnp.asarray(coeffs)), expected, rtol=1e-6)
+
+
+class ContextRecorder:
+    """Returns the original image and keeps the context of every call."""
+
+    def __init__(self):
+        self.contexts = []
+
+    def edit(self, render, original, prompt, key, context):
+        self.contexts.append(context)
+        return np.array(original, np.float32)
+
+
+def test_the_editor_reads_the_label_samples_of_the_view_it_edits(base):
+    """The sampler hands the 2D editor the region labels of every ray in each pixel of the
+    training view (the tracked mesh projected along them: the scene's 2 x 2 rays), which agree
+    with the centre labels wherever all four rays see one region."""
+    from gae_jax.scene.types import projected_label_samples
+
+    s = session_for(base, iterations=1)
+    recorder = ContextRecorder()
+    sampler_ = edit.make_sampler(s, recorder)
+    cam, row = int(s.scene.train_cameras[1]), 2
+    sampler_.edit(s.original.trainable(), cam, row, jax.random.PRNGKey(0))
+    context = recorder.contexts[-1]
+    expected = projected_label_samples(s.scene, [s.pairs[row]], [cam])[0, 0]
+    assert context["samples"].shape == (SIZE, SIZE, s.scene.supersample ** 2)
+    np.testing.assert_array_equal(context["samples"], np.maximum(expected, -1))
+    agree = np.all(expected == expected[..., :1], axis=-1)
+    assert agree.mean() > 0.8 and (~agree).any()
+    np.testing.assert_array_equal(context["regions"][agree], expected[agree][:, 0])

@@ -9,7 +9,9 @@ its Gaussians get no gradient.
 Stripes are placed by the tracked mesh's rest positions projected into the view
 (`types.projected_rest_positions`, as the labels are): the avatar's rendered positions, a
 blend of its Gaussians' along each ray, misplace them (docs/instructions.md measures by how
-much).
+much). The editor also reads the labels of several rays in each pixel
+(`types.projected_label_samples`): how much of a pixel on a region's outline the region covers,
+so that only that share of it is recoloured.
 
 A 2D editor sometimes edits part of the region only (one lip of two, the upper teeth): an edit
 that changes much less of the region than the run's edits usually do is made again with
@@ -34,7 +36,8 @@ from gae_jax.edit import region as edit_region
 from gae_jax.edit.config import EditConfig
 from gae_jax.edit.editors import make_editor
 from gae_jax.model import head
-from gae_jax.scene.types import projected_labels, projected_rest_positions, training_labels
+from gae_jax.scene.types import (projected_label_samples, projected_labels,
+                                 projected_rest_positions, training_labels)
 from gae_jax.util.image import to_uint8
 
 
@@ -100,16 +103,20 @@ def configured_editor(config: EditConfig):
     return make_editor(config.editor, **options)
 
 
-def editor_context(view, where: tuple, labels=None, canonical=None) -> dict:
+def editor_context(view, where: tuple, labels=None, canonical=None, samples=None) -> dict:
     """The context a 2D editor reads (`editors` protocol) from a `step.Preview` of one view;
     where: (camera, sequence, frame); labels: (H, W) region labels of the view to use instead
     of the avatar's rendered ones (a training view's projected mesh labels); canonical: (H, W,
     3) head-space positions to use instead of the avatar's rendered ones (the tracked mesh's
-    rest positions projected into the view)."""
+    rest positions projected into the view); samples: (H, W, S) region labels of S rays in
+    each pixel (the same projection: how much of an edge pixel each region covers)."""
     regions = np.asarray(view.regions) if labels is None else np.maximum(labels, -1)
     coords = np.asarray(view.coords) if canonical is None else np.asarray(canonical)
-    return dict(regions=regions, canonical=coords, normals=np.asarray(view.normals),
-                view=tuple(where))
+    context = dict(regions=regions, canonical=coords, normals=np.asarray(view.normals),
+                   view=tuple(where))
+    if samples is not None:
+        context["samples"] = np.maximum(samples, -1)
+    return context
 
 
 def showing_views(scene, region: tuple, stride: int | None = None) -> np.ndarray | None:
@@ -185,6 +192,7 @@ class EditSampler:
         self.named = self.region not in (("none",), ("auto",))  # regions the labels name
         self.showing = showing_views(scene, self.region) if self.named else None
         self.label_cache: dict = {}
+        self.sample_cache: dict = {}
         self.rest_cache: dict = {}
         self.stripes = _asks_stripes(config.prompt)
         self.shares: list = []  # share of the region each judged edit changed, in call order
@@ -207,7 +215,8 @@ class EditSampler:
         unedited = self.original_image(cam, row) / 255.0
         labels = self.labels(cam, row)
         canonical = self.rest_positions(cam, row) if self.stripes else None
-        context = editor_context(view, (cam,) + tuple(self.pairs[row]), labels, canonical)
+        context = editor_context(view, (cam,) + tuple(self.pairs[row]), labels, canonical,
+                                 self.label_samples(cam, row))
         edited = self.whole_edit(np.asarray(view.image), unedited, context, key, labels)
         if self.region != ("none",):
             edited = self.composited(params, cam, row, edited, unedited, view, labels)
@@ -248,6 +257,15 @@ class EditSampler:
             self.label_cache[(cam, row)] = projected_labels(self.scene, [self.pairs[row]],
                                                             [cam])[0, 0]
         return self.label_cache[(cam, row)]
+
+    def label_samples(self, cam: int, row: int) -> np.ndarray:
+        """(H, W, S) int8 region labels of S rays in each pixel of a training view: the tracked
+        mesh projected along them (`types.projected_label_samples`, what a user has; computed
+        once per view)."""
+        if (cam, row) not in self.sample_cache:
+            self.sample_cache[(cam, row)] = projected_label_samples(
+                self.scene, [self.pairs[row]], [cam])[0, 0]
+        return self.sample_cache[(cam, row)]
 
     def rest_positions(self, cam: int, row: int) -> np.ndarray:
         """(H, W, 3) the tracked mesh's rest positions projected into a training view

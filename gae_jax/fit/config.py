@@ -14,7 +14,9 @@ class ReconstructConfig:
     """Settings of `fit` (learning rates in GaussianAvatars' triangle-local units).
 
     `region_weight` weighs the region loss (the rendered regions against the training views'
-    projected labels, `fit.step.make_fit_step`); 0 fits colour alone.
+    projected labels, `fit.step.make_fit_step`); 0 fits colour alone. `label_samples`: each
+    pixel's labels are those of several rays in it (`types.training_label_samples`, so that a
+    pixel an outline crosses asks for the regions' mix); False: its centre ray's alone.
 
     The Gaussian budget: `per_face` at the start, `max_gaussians` at most (0: no cap). Resolution
     is the scene's. `tile_capacity` 0 sizes the per-tile lists from the initial avatar.
@@ -35,6 +37,7 @@ class ReconstructConfig:
     position_weight: float = 0.01
     scale_weight: float = 1.0
     region_weight: float = 0.1
+    label_samples: bool = True
     sh_degree: Optional[int] = None
     sh_every: int = 500
     densify_every: int = 0

@@ -28,12 +28,13 @@ from gae_jax.fit.step import FitState, initial_state, make_fit_step, optimizer, 
 from gae_jax.model import avatar as av
 from gae_jax.scene import rig as rigs
 from gae_jax.scene.types import (Scene, posed_vertices, training_frames, training_images,
-                                 training_labels)
+                                 training_label_samples, training_labels)
 
 CHECKPOINT_NAME = "reconstruct_checkpoint.npz"
 # Changes when the same settings fit a different avatar (cached reconstructions are keyed by it):
-# 2: the region loss on binary region codes.
-RECONSTRUCTION_VERSION = 2
+# 2: the region loss on binary region codes. 3: against each pixel's label samples (an edge
+# pixel asks for the regions' mix).
+RECONSTRUCTION_VERSION = 3
 
 
 def initial_avatar(scene: Scene, config: ReconstructConfig, key) -> av.Avatar:
@@ -80,8 +81,12 @@ def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
     step_config = FitStepConfig.of(config)
     vertices = posed_vertices(scene, training_frames(scene))
     images = jnp.asarray(training_images(scene))
-    labels = jnp.asarray(training_labels(scene) if config.region_weight else
-                         np.zeros((1, 1, 1, 1), np.int8))
+    if not config.region_weight:
+        labels = np.zeros((1, 1, 1, 1, 1), np.int8)
+    else:
+        labels = (training_label_samples(scene) if config.label_samples else
+                  training_labels(scene)[..., None])
+    labels = jnp.asarray(labels)
     cameras = jnp.asarray(scene.train_cameras, jnp.int32)
     path = os.path.join(checkpoint_dir, CHECKPOINT_NAME) if checkpoint_dir else None
     history, capacity = [], config.tile_capacity

@@ -70,13 +70,14 @@ def make_fit_step(config: FitStepConfig):
     """A jitted `step(state, rig, images, labels, cameras) -> (state, metrics)`, state donated.
 
     rig: the avatar's `Rig` at the training frames; images: (C, T, H, W, 3) uint8 ground truth
-    of those frames; labels: (C, T, H, W) int8 region labels of the same views (the tracked
-    mesh's face regions projected into them; -1 background), read when `region_weight` > 0;
-    cameras: (K,) int32 cameras to sample from.
+    of those frames; labels: (C, T, H, W, S) int8 region labels of S rays in each pixel of the
+    same views (the tracked mesh's face regions projected along them,
+    `types.training_label_samples`; -1 background), read when `region_weight` > 0; cameras:
+    (K,) int32 cameras to sample from.
 
     With `region_weight` > 0 the avatar also renders each Gaussian's region as extra channels
-    (a binary code, `losses.region_codes`), matched to the labels' (`losses.region_loss`): the
-    reconstruction learns where
+    (a binary code, `losses.region_codes`), matched to the labels' (`losses.region_loss`; an
+    edge pixel to the mix of the regions its rays hit): the reconstruction learns where
     regions end (Gaussian Grouping's 2D-mask supervision with the regions fixed by the
     binding), so that recolouring one region's Gaussians reproduces a crisp border.
 

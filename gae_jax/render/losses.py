@@ -109,16 +109,21 @@ def region_codes(num_regions: int) -> np.ndarray:
     return codes
 
 
-def region_loss(weights: jax.Array, labels: jax.Array, codes: jax.Array) -> jax.Array:
-    """Mean over pixels of sum_b |W_b - code_b(label)|: (H, W, B) composited region codes (each
-    Gaussian's `region_codes` row as extra channels) against (H, W) int labels (-1: background,
-    coded all zeros; below -1: unknown, not counted). Zero exactly where each pixel is covered
-    by its own region's Gaussians alone, with full opacity: a mix of two regions' codes, which
-    differ in some bits, leaves those bits fractional."""
-    labels = labels.astype(jnp.int32)
-    target = jnp.asarray(codes, weights.dtype)[jnp.maximum(labels + 1, 0)]
+def region_loss(weights: jax.Array, samples: jax.Array, codes: jax.Array) -> jax.Array:
+    """Mean over pixels of sum_b |W_b - target_b|: (H, W, B) composited region codes (each
+    Gaussian's `region_codes` row as extra channels) against the mean code of each pixel's
+    (H, W, S) int label samples (the regions its S rays project to; -1: background, coded all
+    zeros; below -1: unknown, and a pixel with an unknown sample is not counted). With one
+    sample, zero exactly where each pixel is covered by its own region's Gaussians alone, at
+    full opacity; with several, a pixel a region's outline crosses asks for the regions'
+    mix in the shares its rays say (as the antialiased image does), not for the region at
+    its centre."""
+    samples = samples.astype(jnp.int32)
+    table = jnp.asarray(codes, weights.dtype)
+    target = jnp.mean(table[jnp.maximum(samples + 1, 0)], axis=-2)
     per_pixel = jnp.sum(jnp.abs(weights - target), axis=-1)
-    return jnp.mean(jnp.where(labels >= -1, per_pixel, 0.0))
+    known = jnp.all(samples >= -1, axis=-1)
+    return jnp.mean(jnp.where(known, per_pixel, 0.0))
 
 
 # Added to a colour before its log (`change_coherence`): a change is a ratio for bright colours

@@ -58,6 +58,7 @@ def closed_split(scene, eyes_open: float = 0.8, mouth_pixels: int = 5, min_run: 
     sequences = {n: scene.sequences[n] for n in others}
     images = {n: scene.images[n] for n in others}
     regions = {n: scene.regions[n] for n in others}
+    samples = {n: v for n, v in scene.region_samples.items() if n in others}
     kept = closed_frames(scene, eyes_open, mouth_pixels)
     for name, keep in kept.items():
         seq = scene.sequences[name]
@@ -68,6 +69,9 @@ def closed_split(scene, eyes_open: float = 0.8, mouth_pixels: int = 5, min_run: 
             sequences[part] = dataclasses.replace(seq, name=part, **per_frame)
             images[part] = scene.images[name][:, a:b]
             regions[part] = scene.regions[name][:, a:b]
+            if name in scene.region_samples:
+                samples[part] = scene.region_samples[name][:, a:b]
     if not any(s.split == "train" for s in sequences.values()):
         raise ValueError("no training frame has a closed mouth and open eyes")
-    return dataclasses.replace(scene, sequences=sequences, images=images, regions=regions)
+    return dataclasses.replace(scene, sequences=sequences, images=images, regions=regions,
+                               region_samples=samples)

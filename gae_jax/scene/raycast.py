@@ -5,7 +5,8 @@ pixel centres at +0.5). Each ray hits the first triangle; its colour is the bary
 interpolation of the vertex colours. A pixel's colour is the box-filtered mean of
 `supersample` x `supersample` stratified rays (a camera integrates over its pixel; a single ray
 per pixel leaves aliased, stair-stepped edges no smooth renderer can match). The region label,
-depth and face come from the pixel's centre ray. Runs outside jit on numpy arrays.
+depth and face come from the pixel's centre ray; the region label of each colour ray is kept too
+(`samples`: how much of an edge pixel each region covers). Runs outside jit on numpy arrays.
 """
 
 from __future__ import annotations
@@ -20,13 +21,16 @@ from gae_jax.render.camera import Camera
 @dataclasses.dataclass(frozen=True)
 class RaycastImage:
     """image (H, W, 3), regions (H, W) int32 (-1 = background), depth (H, W) (inf = miss),
-    hit (H, W) bool, faces (H, W) int (-1 = miss)."""
+    hit (H, W) bool, faces (H, W) int (-1 = miss), samples (H, W, S) int8: the region label
+    of each of the pixel's S = supersample^2 colour rays (row-major over the stratified
+    offsets; S = 1: the centre ray's)."""
 
     image: np.ndarray
     regions: np.ndarray
     depth: np.ndarray
     hit: np.ndarray
     faces: np.ndarray
+    samples: np.ndarray
 
 
 def camera_rays(camera: Camera, offset=(0.5, 0.5)):
@@ -152,23 +156,31 @@ def _view(scene, face_colors, regions, camera, rays, background, supersample, sh
           shader=None):
     """One camera's RaycastImage: colour from `supersample`^2 stratified rays per pixel; face,
     region and depth from the centre ray (whose colour is one of the samples when the count is
-    odd and is not computed when it is even)."""
+    odd and is not computed when it is even); each colour ray's region in `samples`."""
     origins, dirs = rays[(0.5, 0.5)]
     centre_is_sample = supersample % 2 == 1
     face_of, distance, centre = _first_hits(scene, face_colors, origins, dirs, background,
                                             shade=centre_is_sample, shader=shader)
+
+    def region_of(faces_hit):
+        return np.where(faces_hit >= 0, regions[np.maximum(faces_hit, 0)], -1).astype(np.int8)
+
     if supersample == 1:
-        image = centre
+        image, samples = centre, [region_of(face_of)]
     else:
-        image = np.zeros((origins.shape[0], 3))
+        image, samples = np.zeros((origins.shape[0], 3)), []
         cells = (np.arange(supersample) + 0.5) / supersample
         for oy in cells:
             for ox in cells:
                 if ox == oy == 0.5:
                     image += centre
+                    samples.append(region_of(face_of))
                     continue
-                image += _first_hits(scene, face_colors, *rays[(float(ox), float(oy))],
-                                     background, shader=shader)[2]
+                hit_faces, _, colour = _first_hits(scene, face_colors,
+                                                   *rays[(float(ox), float(oy))], background,
+                                                   shader=shader)
+                image += colour
+                samples.append(region_of(hit_faces))
         image /= supersample ** 2
     w2c = np.asarray(camera.w2c, np.float64)
     hit = face_of >= 0
@@ -178,4 +190,5 @@ def _view(scene, face_colors, regions, camera, rays, background, supersample, sh
     region_map = np.where(hit, regions[np.maximum(face_of, 0)], -1).astype(np.int32)
     return RaycastImage(image=image.reshape(shape + (3,)).astype(np.float32),
                         regions=region_map.reshape(shape), depth=depth.reshape(shape),
-                        hit=hit.reshape(shape), faces=face_of.reshape(shape))
+                        hit=hit.reshape(shape), faces=face_of.reshape(shape),
+                        samples=np.stack(samples, -1).reshape(shape + (len(samples),)))

@@ -8,7 +8,8 @@ edit of any instruction can be ray-cast too (`evaluation.truth`).
 albedo), several expression / pose sequences per identity, a rig of cameras on the frontal
 hemisphere (one held out, as NeRSemble's camera 8), and ground-truth images rendered by ray
 casting the coloured mesh (`raycast`, independent of the splatting renderer), with per-pixel
-region labels. Shading is baked per vertex in head space (Lambert from a light fixed to the head),
+region labels (the centre ray's, and each colour ray's: how much of an edge pixel each region
+covers). Shading is baked per vertex in head space (Lambert from a light fixed to the head),
 so it moves with the head. Splits: identity A's training sequences on the training cameras
 (reconstruction / editing), the held-out camera (novel view), A's held-out sequence
 (self-reenactment) and B's sequence (cross-identity reenactment).
@@ -36,8 +37,9 @@ from gae_jax.util.fileio import cache_root, write_npz
 from gae_jax.util.image import to_uint8
 
 # 4: embree's own barycentrics (float32) instead of a float64 re-intersection; 1.3e-5 of the
-# 8-bit values changed (77.9 dB between versions at worst)
-SCENE_VERSION = 4
+# 8-bit values changed (77.9 dB between versions at worst). 5: the colour rays' region labels
+# are kept (`Scene.region_samples`); images unchanged.
+SCENE_VERSION = 5
 LIGHT_DIRECTION = np.array([0.35, 0.55, 0.75])  # in head space, towards the light
 AMBIENT = 0.45
 IDENTITY_B_SHAPE = {
@@ -221,19 +223,24 @@ def render_frame(model, face_regions, vertex_colors, shape, sequence: Sequence, 
     pixel per axis anti-alias the colour (see `raycast`); `rays`: `raycast.ray_sets` of the rig,
     built once by a caller that renders many frames; `shader`: `raycast_views`' per-ray
     colouring of (V, K) `vertex_colors` (a pattern sharper than the mesh).
-    Returns images (C, H, W, 3) uint8 and region maps (C, H, W) int8 (-1 background).
+    Returns images (C, H, W, 3) uint8 and region maps (C, H, W) int8 (-1 background); the
+    region of every colour ray is in `render_views`.
     """
+    views = render_views(model, face_regions, vertex_colors, shape, sequence, frame, intrinsics,
+                         w2c, size, background, supersample, rays, shader)
+    return (np.stack([to_uint8(v.image) for v in views]),
+            np.stack([v.regions for v in views]).astype(np.int8))
+
+
+def render_views(model, face_regions, vertex_colors, shape, sequence: Sequence, frame: int,
+                 intrinsics, w2c, size: int, background, supersample: int = 1,
+                 rays: list | None = None, shader=None) -> list:
+    """`render_frame`'s ray casts, one `raycast.RaycastImage` per camera (with each colour
+    ray's region label, `samples`)."""
     verts = np.asarray(_posed(model, sequence.params(shape, frame)))
-    faces = np.asarray(model.faces)
-    images = np.zeros((len(intrinsics), size, size, 3), np.uint8)
-    regions = np.zeros((len(intrinsics), size, size), np.int8)
-    views = raycast_views(verts, faces, vertex_colors, face_regions,
-                          rig_cameras(intrinsics, w2c, size), background, supersample, rays=rays,
-                          shader=shader)
-    for c, out in enumerate(views):
-        images[c] = to_uint8(out.image)
-        regions[c] = out.regions
-    return images, regions
+    return raycast_views(verts, np.asarray(model.faces), vertex_colors, face_regions,
+                         rig_cameras(intrinsics, w2c, size), background, supersample, rays=rays,
+                         shader=shader)
 
 
 def _model_fingerprint(model: flame.FlameModel, assets: head.HeadAssets) -> str:
@@ -291,28 +298,32 @@ def make_synthetic_scene(size: int = 128, num_cameras: int = 16, frames_per_sequ
     held_out = (HELD_OUT_CAMERA % num_cameras,)
     train = tuple(i for i in range(num_cameras) if i not in held_out)
 
-    images, regions = _read_cache(path, sequences, (num_cameras, frames_per_sequence, size))
+    images, regions, samples = _read_cache(path, sequences,
+                                           (num_cameras, frames_per_sequence, size))
     if images is None:
-        images, regions = {}, {}
+        images, regions, samples = {}, {}, {}
         total = sum(s.num_frames for s in sequences.values())
         bar = _progress(total, "ground truth frames", progress)
         rays = ray_sets(rig_cameras(intrinsics, w2c, size), supersample)
         for name, seq in sequences.items():
             per_frame = []
             for t in range(seq.num_frames):
-                per_frame.append(render_frame(model, assets.face_regions, colours[seq.identity],
+                per_frame.append(render_views(model, assets.face_regions, colours[seq.identity],
                                               shapes[seq.identity], seq, t, intrinsics, w2c,
                                               size, bg, supersample, rays))
                 bar.update(1)
-            images[name] = np.stack([f[0] for f in per_frame], axis=1)
-            regions[name] = np.stack([f[1] for f in per_frame], axis=1)
+            images[name] = np.stack([[to_uint8(v.image) for v in f] for f in per_frame], 1)
+            regions[name] = np.stack([[v.regions for v in f] for f in per_frame], 1).astype(
+                np.int8)
+            samples[name] = np.stack([[v.samples for v in f] for f in per_frame], 1)
         bar.close()
-        _save_cache(path, images, regions)
+        _save_cache(path, images, regions, samples)
     return Scene(model=model, face_regions=assets.face_regions,
                  intrinsics=intrinsics.astype(np.float32), w2c=w2c.astype(np.float32),
                  width=size, height=size, train_cameras=train, held_out_cameras=held_out,
                  shapes=shapes, vertex_colors=colours, sequences=sequences, images=images,
-                 regions=regions, background=bg.astype(np.float32), kind="synthetic",
+                 regions=regions, region_samples=samples, background=bg.astype(np.float32),
+                 kind="synthetic",
                  albedo=albedos, supersample=supersample, head=head_kind)
 
 
@@ -334,26 +345,30 @@ def _progress(total, desc, enabled):
 
 
 def _read_cache(path, sequences, shape):
-    """(images, regions) from a cached scene, or (None, None) when there is none or it is
-    unreadable (then it says so in one line and the scene is rebuilt)."""
+    """(images, regions, region samples) from a cached scene, or Nones when there is none or
+    it is unreadable (then it says so in one line and the scene is rebuilt)."""
     if not os.path.isfile(path):
-        return None, None
+        return None, None, None
     cameras, frames, size = shape
     try:
-        images, regions = {}, {}
+        images, regions, samples = {}, {}, {}
         with np.load(path) as f:
             for name in sequences:
                 images[name], regions[name] = f[f"images/{name}"], f[f"regions/{name}"]
+                samples[name] = f[f"samples/{name}"]
                 if images[name].shape != (cameras, frames, size, size, 3):
                     raise ValueError(f"images/{name} has shape {images[name].shape}")
-        return images, regions
+                if samples[name].shape[:4] != (cameras, frames, size, size):
+                    raise ValueError(f"samples/{name} has shape {samples[name].shape}")
+        return images, regions, samples
     except Exception as e:  # truncated zip, flipped bytes, missing member: rebuild
         print(f"warning: the cached scene {path} is unreadable ({type(e).__name__}: {e}); "
               "rebuilding it", file=sys.stderr)
-        return None, None
+        return None, None, None
 
 
-def _save_cache(path, images, regions):
+def _save_cache(path, images, regions, samples):
     arrays = {f"images/{k}": v for k, v in images.items()}
     arrays.update({f"regions/{k}": v for k, v in regions.items()})
+    arrays.update({f"samples/{k}": v for k, v in samples.items()})
     write_npz(path, arrays, compressed=True)

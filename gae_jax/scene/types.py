@@ -70,6 +70,10 @@ class Scene:
       images: sequence name -> (C, T, H, W, 3) uint8 ground truth (zeros where not captured).
       regions: sequence name -> (C, T, H, W) int8 per-pixel labels: region ids where the
         scene knows them (synthetic), 0 on the foreground mask otherwise; -1 background.
+      region_samples: sequence name -> (C, T, H, W, S) int8 region labels of each of a pixel's
+        S colour rays (synthetic scenes: how much of an edge pixel each region covers); absent
+        for a capture, whose labels are projected from its tracked mesh when asked
+        (`projected_label_samples`).
       background: (3,) background colour.
       kind: "synthetic" (ray-cast, so the ideal edit is known) or "capture" (a user's data).
       albedo: identity name -> (V, 3) unshaded albedo (synthetic scenes only: it defines the
@@ -101,6 +105,7 @@ class Scene:
     supersample: int = 1
     head: str = ""
     static_offsets: dict = dataclasses.field(default_factory=dict)
+    region_samples: dict = dataclasses.field(default_factory=dict)
 
     @property
     def num_cameras(self) -> int:
@@ -144,6 +149,9 @@ def training_images(scene: Scene) -> np.ndarray:
 
 
 UNKNOWN_REGION = -2  # a label that supervises nothing (foreground the tracked mesh misses)
+# Rays per pixel per axis of a capture's projected label samples: 4 rays tell how much of an
+# edge pixel each region covers to a quarter.
+LABEL_SUPERSAMPLE = 2
 
 
 def training_labels(scene: Scene, stride: int = 1) -> np.ndarray:
@@ -153,6 +161,50 @@ def training_labels(scene: Scene, stride: int = 1) -> np.ndarray:
     if scene.kind == "synthetic":
         return np.concatenate([scene.regions[n] for n in names], axis=1)[..., ::stride, ::stride]
     return projected_labels(scene, training_frames(scene), range(scene.num_cameras), stride)
+
+
+def training_label_samples(scene: Scene) -> np.ndarray:
+    """(C, T, H, W, S) int8 region labels of each sub-pixel ray of `training_images(scene)`'s
+    views: a synthetic scene's stored samples (`projected_label_samples`); a capture's centre
+    labels, S = 1 (its training views are many, and the fit holds all their labels at once:
+    one label per pixel keeps that to a byte per pixel)."""
+    if scene.kind != "synthetic":
+        return training_labels(scene)[..., None]
+    return projected_label_samples(scene, training_frames(scene), range(scene.num_cameras))
+
+
+def projected_label_samples(scene: Scene, pairs, cameras) -> np.ndarray:
+    """(K, P, H, W, S) int8 region labels of S rays inside each pixel of the views of
+    (sequence, frame) `pairs` from `cameras`: the tracked mesh's face regions projected along
+    each ray, so that a pixel on a region's outline says how much of it each region covers (as
+    `projected_labels` says which region its centre shows). A synthetic scene's stored samples
+    are that projection already (S = its supersample squared; S = 1, the centre labels, for a
+    scene that has none, e.g. rescaled); a capture's are ray-cast at `LABEL_SUPERSAMPLE`, a
+    ray that misses the mesh on the capture's foreground being `UNKNOWN_REGION`."""
+    cameras, pairs = list(cameras), list(pairs)
+    if scene.kind == "synthetic":
+        stored = all(n in scene.region_samples and scene.region_samples[n].shape[2:4]
+                     == (scene.height, scene.width) for n, _ in pairs)
+        if not stored:
+            return projected_labels(scene, pairs, cameras)[..., None]
+        return np.stack([np.stack([scene.region_samples[n][c, t] for n, t in pairs])
+                         for c in cameras])
+    from gae_jax.scene import raycast
+
+    vertices = posed_vertices(scene, pairs)
+    views = [scene.camera(c) for c in cameras]
+    rays = raycast.ray_sets(views, LABEL_SUPERSAMPLE)
+    faces = np.asarray(scene.model.faces)
+    grey = np.zeros((vertices.shape[1], 3))
+    samples = []
+    for j, (name, t) in enumerate(pairs):
+        hits = raycast.raycast_views(vertices[j], faces, grey, scene.face_regions, views,
+                                     supersample=LABEL_SUPERSAMPLE, rays=rays)
+        projected = np.stack([v.samples for v in hits])
+        foreground = (scene.regions[name][cameras, t] >= 0)[..., None]
+        samples.append(np.where(projected >= 0, projected,
+                                np.where(foreground, UNKNOWN_REGION, -1)).astype(np.int8))
+    return np.stack(samples, axis=1)
 
 
 def projected_labels(scene: Scene, pairs, cameras, stride: int = 1) -> np.ndarray:

@@ -21,11 +21,14 @@ rendered from the avatar's Gaussians); stripes need `context["canonical"]` (head
 per pixel: the tracked mesh's rest positions projected into the view, or the avatar's rendered
 ones) so that they stick to the head, and a pixel that a stripe's edge crosses takes its share
 of the stripe (`instructions.stripe_distance`), as a supersampled render does. A pixel on a
-thin uniform region's outline -- part region, part neighbour -- changes by the region's share
-of the recolour only, the share matted from the image (its old colour: albedo x light; the
-neighbour's: seen two pixels out), as a perfect editor's antialiased edge would (in proportion
-as the region is thin: 1 - its size factor below); a textured region's old colour is not
-known, and its outline is painted as its inside, as a wide region's is.
+region's outline -- part region, part neighbour -- changes by the region's share of the
+recolour only, as a perfect editor's antialiased edge would: with `context["samples"]` (the
+region labels of several rays in each pixel, the tracked mesh projected along them as the
+labels are) the share is theirs and the region's old colour and shading those of the nearest
+pixel it covers whole; without them, on a thin uniform region only, the share is matted from
+the image (its old colour: albedo x light; the neighbour's: seen two pixels out; in proportion
+as the region is thin: 1 - its size factor below), and a wide or textured region's outline is
+painted as its inside.
 
 Outside the edited region the editor returns the render it edits (`keeps="render"`, the default:
 a diffusion editor's output follows its input) or the original image (`keeps="original"`: what
@@ -34,7 +37,8 @@ outside the region -- a halo of recoloured Gaussians, drift -- comes back as its
 is never corrected; see the README's ablation and stability findings.
 
 `noise` in [0, 1] imitates a diffusion editor's inconsistency, all drawn from the key: per-call
-colour jitter, the region's outline grown or shrunk and shifted by up to `4 noise` pixels scaled
+colour jitter, the region's outline grown or shrunk and shifted (with label samples, the
+outline as they place it, to a fraction of a pixel) by up to `4 noise` pixels scaled
 by the size of the thinner of the two regions it separates (`min(1, thickness / 16 px)`, the
 thickness being the widest inscribed disk's diameter: a 3-px iris's outline moves by a fraction
 of a pixel, the skin's by up to 1.2 px at the default noise where it meets the hair, as little
@@ -121,8 +125,14 @@ class SemanticEditor:
         if regions.shape != image.shape[:2]:
             raise ValueError(f"context['regions'] must be {image.shape[:2]}, got {regions.shape}")
         region_id = head.REGION_ID[instruction.region]
+        rays = self.ray_labels(context, image.shape[:2])
+        hits = None if rays is None else rays == region_id
+        share = None if hits is None else hits.mean(-1, dtype=np.float32)
+        own = regions == region_id
+        region_distance = (_signed_distance(own) if hits is None else
+                           _share_distance(hits, share))
         pattern = np.ones(regions.shape, bool)
-        distance = None
+        distance = region_distance
         if instruction.stripes:
             if "canonical" not in context:
                 raise ValueError("stripes need context['canonical'], (H, W, 3) head-space "
@@ -131,39 +141,46 @@ class SemanticEditor:
             pattern = stripe_on(height, phase)
             # a stripe's edge crosses pixels: each takes its share of the stripe
             pixel = np.hypot(*np.gradient(height.astype(np.float64)))
-            distance = np.minimum(_signed_distance(regions == region_id),
-                                  stripe_distance(height, pixel, phase))
-        mask = (regions == region_id) & pattern
-        if distance is None:
-            distance = _signed_distance(mask)
+            distance = np.minimum(region_distance, stripe_distance(height, pixel, phase))
+        mask = own & pattern
         keys = jax.random.split(key, 7)
         colour = np.asarray(instruction.colour, np.float32)
         weight = np.clip(distance + 0.5, 0.0, 1.0)
         size = min(1.0, thickness(mask) / FULL_SIZE_THICKNESS)
+        unmixed = None if rays is None else np.all(rays == rays[..., :1], axis=-1)
+        shade, light, uniform = self.shading(source, regions, context.get("normals"),
+                                             instruction.region, unmixed)
+        # How much of a thin uniform region's outline stays where it is whatever the editor's
+        # moves: with label samples, where they put it; without, the share matted from the
+        # image. Most of a thin region's pixels are outline pixels.
+        matte = uniform * (1.0 - size) if context.get("normals") is not None else 0.0
         if self.noise > 0:
             colour = colour + 0.12 * self.noise * np.asarray(
                 jax.random.normal(keys[0], (3,)), np.float32)
             reach = OUTLINE_JITTER * self.noise * border_size(regions, mask, size)
-            weight = _jitter(mask, reach, keys[1:6], self.noise, distance)
+            weight = _jitter(mask, reach, keys[1:6], self.noise, distance,
+                             matte if share is not None else 0.0)
         colour = np.clip(colour, 0, 1)
-        shade, light, uniform = self.shading(source, regions, context.get("normals"),
-                                             instruction.region)
         outside = image if self.keeps == "render" else source
         w = weight[..., None]
+        base = np.asarray(self.albedo.get(instruction.region, colour), np.float32)
         edited = w * colour * shade[..., None] + (1 - w) * outside
-        matte = uniform * (1.0 - size) if context.get("normals") is not None else 0.0
-        if matte > 0:
-            # On the outline a pixel is part region, part neighbour: only the region's share
-            # changes, by what recolouring it changes. With the region's old colour known (a
-            # uniform region: albedo x light) and the neighbour's seen nearby, the share is the
-            # pixel's alpha matte (`_matte`). That matters for a thin region, most of whose
-            # pixels are on its outline; a wide one's is painted as its inside (its light and
-            # texture are not known well enough for a matte that helps: measured on the skin).
+        if share is not None:
+            # Where the (moved) outline crosses a pixel, only the region's part of it changes,
+            # by what recolouring changes next to it: the old colour and shading of the nearest
+            # pixel the region covers whole.
+            pure = mask & (share >= 1.0)
+            old, near = _nearest(source, shade, pure, base * light[..., None], light)
+            edited = np.where(((weight > 0) & (weight < 1))[..., None],
+                              outside + w * (colour * near[..., None] - old), edited)
+        elif matte > 0:
+            # Without label samples, the share of an outline pixel is matted from the image:
+            # the region's old colour known (a uniform region: albedo x light) and the
+            # neighbour's seen nearby (`_matte`). That matters for a thin region, most of whose
+            # pixels are on its outline; a wide one's is painted as its inside.
             inside = weight > 0.5
-            base = np.asarray(self.albedo.get(instruction.region, colour), np.float32)
-            old = base * light[..., None]
-            share = _matte(source, inside, old) * pattern
-            repaint = outside + share[..., None] * (colour - base) * light[..., None]
+            share_of = _matte(source, inside, base * light[..., None]) * pattern
+            repaint = outside + share_of[..., None] * (colour - base) * light[..., None]
             band = _outline_band(inside)[..., None]
             edited = np.where(band, matte * repaint + (1 - matte) * edited, edited)
         if self.bleed:
@@ -173,12 +190,27 @@ class SemanticEditor:
             edited = edited * (1 + 0.04 * self.noise * float(jax.random.normal(keys[6])))
         return np.clip(edited, 0, 1).astype(np.float32)
 
-    def shading(self, source, regions, normals, region: str) -> tuple:
+    @staticmethod
+    def ray_labels(context: dict, shape: tuple):
+        """(H, W, S) int region labels of S rays on a grid in each pixel, `context["samples"]`
+        (the tracked mesh projected along them, as the labels are), or None without them."""
+        if context.get("samples") is None:
+            return None
+        samples = np.asarray(context["samples"])
+        side = int(round(np.sqrt(samples.shape[-1]))) if samples.ndim == 3 else 0
+        if samples.ndim != 3 or samples.shape[:2] != tuple(shape) or side ** 2 != samples.shape[-1]:
+            raise ValueError(f"context['samples'] must be (H, W, S) with (H, W) = {shape} and S "
+                             f"a square (rays on a grid in each pixel), got {samples.shape}")
+        return samples
+
+    def shading(self, source, regions, normals, region: str, unmixed=None) -> tuple:
         """((H, W) shading, (H, W) light, uniformity) of the original image: the pixels' ratios
         or the fitted lighting, as the module docstring says, the light alone (the fit
         rescaled to the region) and whether the region is uniform or textured
         (`shading.trust_ratio`) when `normals` are given; else luminance over `region`'s
-        albedo, twice, and uniform."""
+        albedo, twice, and uniform. `unmixed`: (H, W) bool, the pixels all of whose rays see
+        one region (from label samples): the light is fitted on them, and a thin region's
+        judged on them, instead of on the pixels whose 3 x 3 neighbourhood has one label."""
         luminance = {n: max(float(np.asarray(rgb) @ LUMA), 1e-3)
                      for n, rgb in self.albedo.items() if n in head.REGION_ID}
         if normals is not None:
@@ -186,13 +218,15 @@ class SemanticEditor:
             known = np.full(regions.shape, -1.0, np.float32)
             for name, value in luminance.items():
                 known[regions == head.REGION_ID[name]] = value
-            inner = _interior(regions)
+            inner = _interior(regions) if unmixed is None else unmixed & (regions >= 0)
             ratio = (source @ LUMA) / luminance.get(region, 1.0)
             fitted = shading_map(source, normals, inner & (known > 0), known)
             if fitted is not None:
                 own = regions == head.REGION_ID.get(region, -2)
                 thin = (own & inner).sum() < THIN  # then judged on all its pixels
-                return trust_ratio(ratio, *fitted, own if thin else own & inner, thin)
+                judged = own & inner if not thin or (unmixed is not None
+                                                      and (own & inner).any()) else own
+                return trust_ratio(ratio, *fitted, judged, thin)
         ratio = (source @ LUMA) / luminance.get(region, max(float(LUMA.sum()), 1e-3))
         return ratio, ratio, 1.0
 
@@ -286,6 +320,42 @@ def _signed_distance(mask: np.ndarray) -> np.ndarray:
     return np.where(mask, inside - 0.5, 0.5 - outside).astype(np.float32)
 
 
+def _share_distance(hits: np.ndarray, share: np.ndarray) -> np.ndarray:
+    """(H, W) float signed distance (px, positive inside) from each pixel's centre to the
+    outline of a region given by the (H, W, k * k) bool `hits` of k x k rays in each pixel
+    (row-major in the pixel), whose (H, W) `share` is their mean. Where the region covers part
+    of a pixel, share - 1/2 (a straight outline through a box-filtered pixel: the weight
+    clip(d + 1/2, 0, 1) is the share); elsewhere `_signed_distance` of the k-times finer mask
+    the rays form, in pixels and averaged over the pixel's rays, at least 1/2 where the region
+    covers the pixel whole and at most -1/2 where it misses it. The field rises about a pixel
+    per pixel across the outline, so that shifting it moves the region."""
+    h, w, count = hits.shape
+    k = int(round(np.sqrt(count)))
+    fine = hits.reshape(h, w, k, k).transpose(0, 2, 1, 3).reshape(h * k, w * k)
+    d = (_signed_distance(fine) / k).reshape(h, k, w, k).mean((1, 3))
+    return np.where(share >= 1.0, np.maximum(d, 0.5),
+                    np.where(share <= 0.0, np.minimum(d, -0.5), share - 0.5)).astype(np.float32)
+
+
+def _nearest(source: np.ndarray, shade: np.ndarray, pure: np.ndarray, old: np.ndarray,
+             light: np.ndarray) -> tuple:
+    """((H, W, 3) the region's old colour, (H, W) its shading) at every pixel, taken from the
+    nearest pixel the region covers whole (the (H, W) bool `pure`): its colour in the (H, W, 3)
+    `source` and its (H, W) `shade`, so that a textured region's outline continues the texture
+    beside it. Without a pure pixel (a region thinner than a pixel), the (H, W, 3) `old` and
+    (H, W) `light` (a uniform region's albedo under the fitted light)."""
+    import cv2
+
+    if not pure.any():
+        return old, light
+    _, index = cv2.distanceTransformWithLabels((~pure).astype(np.uint8), cv2.DIST_L2,
+                                               cv2.DIST_MASK_5,
+                                               labelType=cv2.DIST_LABEL_PIXEL)
+    ys, xs = np.nonzero(pure)  # labels number the pure pixels in raster order from 1
+    at = (ys[index - 1], xs[index - 1])
+    return source[at], shade[at]
+
+
 def _matte(image: np.ndarray, inside: np.ndarray, old: np.ndarray) -> np.ndarray:
     """(H, W) share of each pixel near the outline of the (H, W) bool region `inside` that the
     region covers, from the (H, W, 3) image: pixel = share x old + (1 - share) x neighbour,
@@ -326,12 +396,12 @@ def _outline_band(mask: np.ndarray) -> np.ndarray:
 
 
 def _jitter(mask: np.ndarray, reach: np.ndarray, keys, noise: float,
-            distance: np.ndarray) -> np.ndarray:
+            distance: np.ndarray, steady: float = 0.0) -> np.ndarray:
     """(H, W) float weight in [0, 1]: `mask` grown (or shrunk) and shifted by a grow and a shift
     drawn uniformly in [-1, 1], each pixel's outline moving by them times its (H, W) `reach` in
     px (sub-pixel: its (H, W) signed `distance`, positive inside, is sampled with linear
-    interpolation and clipped to a one-pixel ramp), then with probability 0.25 noise cut to a
-    random half."""
+    interpolation and clipped to a one-pixel ramp), a `steady` share of the weight staying
+    with the unmoved outline; then with probability 0.25 noise cut to a random half."""
     import cv2
 
     weight = np.clip(distance + 0.5, 0.0, 1.0)
@@ -343,7 +413,8 @@ def _jitter(mask: np.ndarray, reach: np.ndarray, keys, noise: float,
         yy, xx = np.mgrid[:mask.shape[0], :mask.shape[1]].astype(np.float32)
         moved = cv2.remap(distance, xx - dx * reach, yy - dy * reach,
                           cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        weight = np.clip(moved + grow * reach + 0.5, 0.0, 1.0)
+        weight = (steady * weight
+                  + (1.0 - steady) * np.clip(moved + grow * reach + 0.5, 0.0, 1.0))
     if float(jax.random.uniform(keys[2])) < 0.25 * noise and mask.any():
         ys, xs = np.nonzero(mask)
         angle = float(jax.random.uniform(keys[3], (), maxval=2 * np.pi))
