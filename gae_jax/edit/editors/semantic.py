@@ -223,9 +223,11 @@ class SemanticEditor:
             fitted = shading_map(source, normals, inner & (known > 0), known)
             if fitted is not None:
                 own = regions == head.REGION_ID.get(region, -2)
-                thin = (own & inner).sum() < THIN  # then judged on all its pixels
-                judged = own & inner if not thin or (unmixed is not None
-                                                      and (own & inner).any()) else own
+                own_inner = own & inner
+                thin = own_inner.sum() < THIN
+                # a thin region is judged on all its pixels, unless label samples say which
+                # of them it covers whole
+                judged = own if thin and (unmixed is None or not own_inner.any()) else own_inner
                 return trust_ratio(ratio, *fitted, judged, thin)
         ratio = (source @ LUMA) / luminance.get(region, max(float(LUMA.sum()), 1e-3))
         return ratio, ratio, 1.0
