@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from gae_jax import evaluate, train
+from gae_jax.edit import calibration
 from gae_jax.edit import config as edit_config
 from gae_jax.edit import edit, sampler
 from gae_jax.edit import region as region_module
@@ -655,3 +656,73 @@ def test_the_editor_reads_the_label_samples_of_the_view_it_edits(base):
     agree = np.all(expected == expected[..., :1], axis=-1)
     assert agree.mean() > 0.8 and (~agree).any()
     np.testing.assert_array_equal(context["regions"][agree], expected[agree][:, 0])
+
+
+class CastEditor:
+    """Recolours a region (the lips) by a gain drawn from the key (a colour cast that differs
+    per call): edit = unedited x gain on the region's pixels."""
+
+    def __init__(self, region="lips"):
+        self.region, self.gains = region, []
+
+    def edit(self, render, original, prompt, key, context):
+        gain = np.asarray(jax.random.uniform(key, (3,), minval=0.4, maxval=1.6), np.float32)
+        self.gains.append(gain)
+        out = np.array(original, np.float32)
+        inside = context["regions"] == head.REGION_ID[self.region]
+        out[inside] = np.clip(out[inside] * gain, 0, 1)
+        return out
+
+
+def test_calibration_brings_every_call_to_the_median_cast_of_the_calls_so_far(base):
+    """Calls that each recolour the lips by their own cast come out with the per-channel
+    median of the casts so far (computed here from the casts themselves) on the lips' pure
+    pixels; without calibration each keeps its own; a view without enough lip pixels is
+    left as the editor made it and not counted."""
+    s = session_for(base, iterations=2)
+    params = s.original.trainable()
+    views = [(int(c), r) for r in range(3) for c in s.scene.train_cameras]
+    for on in (True, False):
+        editor = CastEditor()
+        sampler_ = edit.make_sampler(dataclasses.replace(
+            s, config=dataclasses.replace(s.config, edit_calibration=on)), editor)
+        read = []
+        for n, (cam, row) in enumerate(views):
+            labels = sampler_.labels(cam, row)
+            unedited = sampler_.original_image(cam, row) / 255.0
+            view = s.preview(params, s.rig, jnp.int32(cam), jnp.int32(row), s.canonical)
+            context = sampler.editor_context(view, (cam,) + tuple(sampler_.pairs[row]), labels,
+                                             None, sampler_.label_samples(cam, row))
+            key = jax.random.PRNGKey(n)
+            edited = sampler_.whole_edit(np.asarray(view.image), unedited, context, key, labels)
+            out = (sampler_.calibrated(edited, unedited, context["samples"], labels) if on
+                   else edited)
+            samples = context["samples"]
+            pure = (samples == head.REGION_ID["lips"]).all(-1)
+            lit = pure & (unedited.max(-1) > calibration.DARK) & (
+                np.abs(edited - unedited).max(-1) >= calibration.FULL_CHANGE)
+            gain = editor.gains[-1]
+            if lit.sum() < calibration.MIN_PIXELS:
+                np.testing.assert_array_equal(out, edited)
+                continue
+            read.append(gain)
+            expected = np.median(read, axis=0) if on else gain
+            unclipped = lit & (unedited * np.maximum(gain, expected) < 1).all(-1)
+            assert unclipped.sum() >= calibration.MIN_PIXELS
+            np.testing.assert_allclose(out[unclipped], (unedited * expected)[unclipped],
+                                       atol=2e-5)
+        assert len(read) >= 5
+        if on:
+            assert len(sampler_.colours) == len(read)
+
+
+def test_a_striped_region_is_not_calibrated(base):
+    """Stripes are two colours in the region, not one cast: the loop reads no call's colour
+    for them, while the same editor's calls on a recolour of the region are read."""
+    for prompt, read in (("add green stripes to the skin", False), ("make the skin green", True)):
+        s = session_for(base, iterations=2, prompt=prompt)
+        sampler_ = edit.make_sampler(s, CastEditor("skin"))
+        params = s.original.trainable()
+        for n, cam in enumerate(s.scene.train_cameras[:3]):
+            sampler_.edit(params, int(cam), 0, jax.random.PRNGKey(n))
+        assert (len(sampler_.colours) == 3) if read else (sampler_.colours == [])

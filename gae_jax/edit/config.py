@@ -36,7 +36,8 @@ class EditConfig:
     # What a checkpoint or benchmark record written before a field existed did, where that is
     # not the field's default: the loss was L1 + SSIM before `ssim_weight`.
     ABSENT_MEANS: ClassVar[dict] = {"ssim_weight": 1.0, "average_decay": 0.0,
-                                    "edit_retries": 0, "coherence_weight": 0.0}
+                                    "edit_retries": 0, "coherence_weight": 0.0,
+                                    "edit_calibration": False}
 
     prompt: str = "turn the lips blue"
     editor: str = "semantic"
@@ -45,6 +46,7 @@ class EditConfig:
     editor_bleed: int = 0
     editor_modes: int = 1
     edit_retries: int = 2
+    edit_calibration: bool = True
     ip2p_folder: str = ""
     clip_folder: str = ""
     iterations: int = 100
@@ -134,6 +136,10 @@ HELP = {
     "edit_retries": "a 2D edit that changes under 75 %% of the share of the region the run's "
                     "edits usually change (a partial edit: one lip of two) is made again with "
                     "another key, up to this many times (0: never; named regions only)",
+    "edit_calibration": "bring each 2D edit's colour to the median of the run's edits (the "
+                        "edit / unedited ratio on the region's pure pixels; a named region "
+                        "recoloured, not striped): a diffusion editor answers in a different "
+                        "shade per call",
     "ip2p_folder": "local diffusers InstructPix2Pix folder (editor ip2p)",
     "clip_folder": "local CLIP folder for CLIP-S / CLIP-C in metrics.json (skipped if empty)",
     "iterations": "edit iterations",
@@ -189,21 +195,22 @@ PRESETS = {
                   recon_weight=10.0, ssim_weight=1.0, d_weight=0.01, g_weight=0.01,
                   const_weight=10.0, lr=1e-2, lr_geometry=1e-2, lr_means=1e-2, lr_final=1.0,
                   adam_eps=1e-15, region="none", editor_keeps="render", average_decay=0.0,
-                  edit_retries=0, coherence_weight=0.0),
+                  edit_retries=0, coherence_weight=0.0, edit_calibration=False),
     "fast": dict(),
     "no_region": dict(region="none"),
     "previous": dict(region="none", editor_keeps="render", blend="wabe_grad", ssim_weight=1.0,
                      lr=1e-2, lr_final=1.0, adam_eps=1e-4, average_decay=0.0, edit_retries=0,
-                     coherence_weight=0.0),
+                     coherence_weight=0.0, edit_calibration=False),
     "wabe": dict(blend="wabe"),
     "wabe_grad": dict(blend="wabe_grad"),
     "ssim": dict(ssim_weight=1.0),
     "no_adv": dict(adversarial=False),
     "code": dict(pair_mode="code", gradient_mask="code", region="none", editor_keeps="render",
                  ssim_weight=1.0, lr_final=0.1, average_decay=0.0, edit_retries=0,
-                 coherence_weight=0.0),
+                 coherence_weight=0.0, edit_calibration=False),
     "in2n": dict(adversarial=False, dataset_update=True, region="none", lr_final=0.1,
-                 average_decay=0.0, edit_retries=0, coherence_weight=0.0),
+                 average_decay=0.0, edit_retries=0, coherence_weight=0.0,
+                 edit_calibration=False),
 }
 
 

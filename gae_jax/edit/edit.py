@@ -90,6 +90,7 @@ def _save(path, state, sampler: EditSampler, history, config):
             arrays[f"{name}/images"] = np.stack([store[k] for k in keys])
     arrays["region/votes"] = sampler.votes
     arrays["region/shares"] = np.asarray(sampler.shares, np.float64)
+    arrays["region/colours"] = np.asarray(sampler.colours, np.float32).reshape(-1, 3)
     loop.save_checkpoint(path, dict(state=state), arrays, config, history=history)
 
 
@@ -103,6 +104,7 @@ def _load(path, template, sampler: EditSampler, config):
             store.update({(int(a), int(b)): images[j] for j, (a, b) in enumerate(keys)})
     sampler.votes = np.asarray(arrays["region/votes"], np.float64)
     sampler.shares = [float(v) for v in arrays["region/shares"]]
+    sampler.colours = [np.asarray(v, np.float32) for v in arrays.get("region/colours", ())]
     return trees["state"], meta["history"]
 
 

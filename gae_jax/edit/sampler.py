@@ -18,6 +18,10 @@ that changes much less of the region than the run's edits usually do is made aga
 another key (`EditConfig.edit_retries`). A rarely seen Gaussian (a back tooth) learns from a few
 edits, and one that left it unedited pulls it back to its old colour.
 
+A 2D editor also answers each call in its own shade: a recolour of a named region is brought to
+the per-channel median colour of the run's calls so far (`calibration`,
+`EditConfig.edit_calibration`), read on the pixels the region covers whole.
+
 Edits are quantised to 8 bits (an editor's output image), so checkpoints hold them exactly and
 a resumed run reproduces an uninterrupted one.
 """
@@ -32,7 +36,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from gae_jax import instructions
-from gae_jax.edit import region as edit_region
+from gae_jax.edit import calibration, region as edit_region
 from gae_jax.edit.config import EditConfig
 from gae_jax.edit.editors import make_editor
 from gae_jax.model import head
@@ -196,6 +200,7 @@ class EditSampler:
         self.rest_cache: dict = {}
         self.stripes = _asks_stripes(config.prompt)
         self.shares: list = []  # share of the region each judged edit changed, in call order
+        self.colours: list = []  # (3,) colour of each read call (`calibration`), in call order
         # What `draw` samples from: cameras, (camera, frame row) pairs, neighbour counts.
         self.draw_tables = (jnp.asarray(scene.train_cameras, jnp.int32),
                             jnp.asarray(np.zeros((1, 2)) if self.showing is None
@@ -218,6 +223,8 @@ class EditSampler:
         context = editor_context(view, (cam,) + tuple(self.pairs[row]), labels, canonical,
                                  self.label_samples(cam, row))
         edited = self.whole_edit(np.asarray(view.image), unedited, context, key, labels)
+        if self.named and self.config.edit_calibration and not self.stripes:
+            edited = self.calibrated(edited, unedited, context.get("samples"), labels)
         if self.region != ("none",):
             edited = self.composited(params, cam, row, edited, unedited, view, labels)
         edited = to_uint8(edited)
@@ -245,6 +252,23 @@ class EditSampler:
             if share >= PARTIAL * usual:
                 return edited
         return max(tries, key=lambda t: t[0])[1]
+
+    def calibrated(self, edited, unedited, samples, labels) -> np.ndarray:
+        """The (H, W, 3) edit brought to the colour of the run's edits so far
+        (`calibration`): its colour read on the pixels all of whose rays (the (H, W, S) label
+        `samples`; without them, the (H, W) `labels`' interior) see the named region, then
+        moved by the region's share of each pixel. A call whose colour cannot be read is kept
+        as it is and not counted."""
+        if samples is None:
+            samples = labels[..., None]
+        share = self.region_pixels(samples).mean(-1, dtype=np.float32)
+        own = calibration.call_colour(edited, unedited,
+                                      calibration.pure_pixels(share, samples.shape[-1]))
+        if own is None:
+            return edited
+        self.colours.append(own)
+        return calibration.to_consensus(edited, unedited, share, own,
+                                        calibration.consensus(self.colours))
 
     def region_pixels(self, labels: np.ndarray) -> np.ndarray:
         """(H, W) bool: the named region's pixels in a view's (H, W) labels."""
