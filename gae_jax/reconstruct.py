@@ -39,7 +39,10 @@ HELP = dict(
     "rendered regions against the tracked mesh's labels projected into the training views "
     "(0: colour alone)", label_samples="the region loss reads the labels of several rays "
     "in each pixel, so that a pixel an outline crosses asks for the regions' mix (false: "
-    "the centre ray's label alone)", sh_degree="SH degree (empty: plain RGB)",
+    "the centre ray's label alone)", unseen_weight="weight of the region loss in views no "
+    "camera took: cameras between two training cameras, poses between two training frames "
+    "with the expression up to 1.25x as strong, labelled by the tracked mesh alone (0: off)",
+    unseen_views="how many such views are drawn once before the fit", sh_degree="SH degree (empty: plain RGB)",
     sh_every="steps between SH band growths", densify_every="steps between densify rounds "
     "(0: never)", densify_from="first densify step", densify_until="last densify step as a "
     "fraction of the iterations", grad_threshold="screen-gradient threshold of densification",

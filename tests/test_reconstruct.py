@@ -168,7 +168,7 @@ def test_the_region_loss_teaches_each_pixel_its_region(scene):
     results = {}
     for weight in (0.0, 0.3):
         fitted, history = fit(scene, ReconstructConfig(iterations=150, seed=2,
-                                                        region_weight=weight))
+                                                        region_weight=weight, unseen_weight=0.0))
         rig = rigs.put_rig(scene, fitted, posed_vertices(scene, training_frames(scene)))
         labels = jnp.asarray(training_label_samples(scene))
         codes = losses.region_codes(len(head.REGIONS))

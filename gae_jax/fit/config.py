@@ -17,6 +17,11 @@ class ReconstructConfig:
     projected labels, `fit.step.make_fit_step`); 0 fits colour alone. `label_samples`: each
     pixel's labels are those of several rays in it (`types.training_label_samples`, so that a
     pixel an outline crosses asks for the regions' mix); False: its centre ray's alone.
+    `unseen_weight` weighs the same loss in `unseen_views` views no camera took
+    (`scene.unseen`: between the training cameras and frames, the expression carried a quarter
+    further; the tracked mesh's labels alone), one of them rendered beside each step's training
+    view: a region's Gaussians then end where the region does in views they were not fitted
+    in, so that recolouring them does not paint their neighbours there.
 
     The Gaussian budget: `per_face` at the start, `max_gaussians` at most (0: no cap). Resolution
     is the scene's. `tile_capacity` 0 sizes the per-tile lists from the initial avatar.
@@ -38,6 +43,8 @@ class ReconstructConfig:
     scale_weight: float = 1.0
     region_weight: float = 0.1
     label_samples: bool = True
+    unseen_weight: float = 0.1
+    unseen_views: int = 64
     sh_degree: Optional[int] = None
     sh_every: int = 500
     densify_every: int = 0
@@ -63,6 +70,9 @@ class ReconstructConfig:
             raise ValueError(f"sh_degree must be None or 0..3, got {self.sh_degree}")
         if min(self.densify_every, self.checkpoint_every, self.max_gaussians) < 0:
             raise ValueError("densify_every, checkpoint_every and max_gaussians must be >= 0")
+        if not (self.unseen_weight >= 0 and self.unseen_views >= 1):
+            raise ValueError(f"unseen_weight must be >= 0 and unseen_views >= 1, got "
+                             f"{self.unseen_weight} and {self.unseen_views}")
         if not self.screen_filter >= 0:
             raise ValueError(f"screen_filter is px^2 added to a covariance, >= 0; got "
                              f"{self.screen_filter}")
@@ -86,6 +96,7 @@ class FitStepConfig:
     position_weight: float
     scale_weight: float
     region_weight: float
+    unseen_weight: float
     sh_degree: Optional[int]
     sh_every: int
     tiles_per_chunk: int

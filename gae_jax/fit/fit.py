@@ -29,6 +29,7 @@ from gae_jax.model import avatar as av
 from gae_jax.scene import rig as rigs
 from gae_jax.scene.types import (Scene, posed_vertices, training_frames, training_images,
                                  training_label_samples, training_labels)
+from gae_jax.scene.unseen import unseen_views
 
 CHECKPOINT_NAME = "reconstruct_checkpoint.npz"
 # Changes when the same settings fit a different avatar (cached reconstructions are keyed by it):
@@ -58,11 +59,29 @@ def _checkpoint_template(config: ReconstructConfig):
     return template
 
 
-def _save(path, state: FitState, fixed: av.Avatar, config, history, capacity):
+def _save(path, state: FitState, fixed: av.Avatar, config, history, capacity,
+          unseen_capacity):
     shapes = {f"shape/{k}": jnp.asarray(v.shape) for k, v in state.params.items()}
     loop.save_checkpoint(path, dict(state=state), dict(binding=fixed.binding,
                                                        regions=fixed.regions, **shapes),
-                         config, history=history, tile_capacity=capacity)
+                         config, history=history, tile_capacity=capacity,
+                         unseen_capacity=unseen_capacity)
+
+
+def _unseen(scene: Scene, avatar: av.Avatar, config: ReconstructConfig, capacity: int,
+            kept: int):
+    """(Rig, (K, H, W, S) labels) of the fit's `unseen_views` views (`scene.unseen`). Cameras
+    between the training ones can see the head larger than any training camera: the rig's tile
+    capacity is the larger of the training `capacity` and those views' busiest tile, sized once
+    and then `kept` through resumes (0: not sized yet)."""
+    views = unseen_views(scene, config.unseen_views, config.seed)
+    rig = rigs.make_rig(scene.model.faces, avatar, views.vertices, views.intrinsics, views.w2c,
+                        scene.background, scene.width, scene.height, kept or capacity,
+                        config.screen_filter)
+    if not kept:
+        rig = dataclasses.replace(rig, tile_capacity=max(capacity, rigs.required_capacity(
+            avatar.trainable(), rig, range(config.unseen_views))))
+    return rig, jnp.asarray(views.labels)
 
 
 def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
@@ -89,11 +108,12 @@ def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
     labels = jnp.asarray(labels)
     cameras = jnp.asarray(scene.train_cameras, jnp.int32)
     path = os.path.join(checkpoint_dir, CHECKPOINT_NAME) if checkpoint_dir else None
-    history, capacity = [], config.tile_capacity
+    history, capacity, unseen_capacity = [], config.tile_capacity, 0
     if resume and path and os.path.isfile(path):
         trees, arrays, meta = loop.load_checkpoint(
             path, dict(state=_checkpoint_template(config)), config, free=("checkpoint_every",))
         state, history, capacity = trees["state"], meta["history"], meta["tile_capacity"]
+        unseen_capacity = meta.get("unseen_capacity", 0)
         fixed = av.Avatar(binding=jnp.asarray(arrays["binding"]),
                           regions=jnp.asarray(arrays["regions"]), **state.params)
     else:
@@ -106,6 +126,10 @@ def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
     rig = rigs.put_rig(scene, fixed, vertices, tile_capacity=capacity,
                        screen_filter=config.screen_filter)
     capacity = rig.tile_capacity
+    unseen = None
+    if config.unseen_weight:
+        unseen = _unseen(scene, fixed, config, capacity, unseen_capacity)
+        unseen_capacity = unseen[0].tile_capacity
     step = make_fit_step(step_config)
     recorder = loop.Recorder("reconstruct", config.iterations, int(state.step), history,
                              progress, progress_fn, postfix_every=10, postfix=lambda h: dict(
@@ -113,7 +137,7 @@ def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
                                  n=int(h["num_gaussians"])))
     densify_stop = int(config.densify_until * config.iterations)
     for i in range(int(state.step), config.iterations):
-        state, metrics = step(state, rig, images, labels, cameras)
+        state, metrics = step(state, rig, images, labels, cameras, unseen)
         recorder.push(i + 1, metrics)
         done = i + 1
         if (config.densify_every and config.densify_from <= done < densify_stop
@@ -122,9 +146,12 @@ def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
             state, fixed = densify_and_prune(state, fixed, config, scene.model.faces.shape[0])
             rig = dataclasses.replace(rig, binding=jnp.asarray(fixed.binding),
                                       regions=jnp.asarray(fixed.regions))
+            if unseen is not None:
+                unseen = (dataclasses.replace(unseen[0], binding=rig.binding,
+                                              regions=rig.regions), unseen[1])
         if path and config.checkpoint_every and done % config.checkpoint_every == 0:
             recorder.flush()
-            _save(path, state, fixed, config, recorder.history, capacity)
+            _save(path, state, fixed, config, recorder.history, capacity, unseen_capacity)
     history = recorder.close()
     fitted = fixed.with_params(state.params)
     if fitted.colors.ndim == 3:

@@ -2,9 +2,10 @@
 GaussianAvatars' losses, one per-attribute Adam update, accumulate screen-space gradients.
 
 Losses: (1 - dssim_weight) L1 + dssim_weight D-SSIM, position regulariser (beyond 1 triangle
-scale) and scale regulariser (beyond 0.6), on the Gaussians visible in the view, and the region
-loss (`region_weight`): the rendered regions against the view's projected labels. The position
-rate decays exponentially to `lr_means_final` (as in 3DGS).
+scale) and scale regulariser (beyond 0.6), on the Gaussians visible in the view, the region
+loss (`region_weight`): the rendered regions against the view's projected labels, and
+(`unseen_weight`) the same in a view between the training ones that only the mesh labels. The
+position rate decays exponentially to `lr_means_final` (as in 3DGS).
 """
 
 from __future__ import annotations
@@ -67,7 +68,8 @@ def sh_mask(colors_shape, degree) -> jax.Array:
 
 
 def make_fit_step(config: FitStepConfig):
-    """A jitted `step(state, rig, images, labels, cameras) -> (state, metrics)`, state donated.
+    """A jitted `step(state, rig, images, labels, cameras, unseen=None) -> (state, metrics)`,
+    state donated.
 
     rig: the avatar's `Rig` at the training frames; images: (C, T, H, W, 3) uint8 ground truth
     of those frames; labels: (C, T, H, W, S) int8 region labels of S rays in each pixel of the
@@ -79,7 +81,10 @@ def make_fit_step(config: FitStepConfig):
     (a binary code, `losses.region_codes`), matched to the labels' (`losses.region_loss`; an
     edge pixel to the mix of the regions its rays hit): the reconstruction learns where
     regions end (Gaussian Grouping's 2D-mask supervision with the regions fixed by the
-    binding), so that recolouring one region's Gaussians reproduces a crisp border.
+    binding), so that recolouring one region's Gaussians reproduces a crisp border. `unseen`:
+    None, or (Rig, (K, H, W, S) int8 labels) of K views no camera took (`scene.unseen`, view k
+    = rig frame k from rig camera k); with `unseen_weight` > 0 one of them, drawn each step, is
+    rendered too and its regions matched to its labels (no image: only the mesh knows it).
 
     Plain RGB colours are clipped to [0, 1] after each update: a Gaussian half hidden behind
     another otherwise overshoots (cyan sclera, green spots in the mouth seen from a novel view).
@@ -87,11 +92,12 @@ def make_fit_step(config: FitStepConfig):
     opt = optimizer(config)
     codes = jnp.asarray(losses.region_codes(len(head.REGIONS)))
 
-    def loss_fn(params, offset, rig, images, labels, cam, frame, degree):
+    def loss_fn(params, offset, rig, images, labels, cam, frame, degree, unseen, view):
         colors = params["colors"]
         if colors.ndim == 3:
             params = dict(params, colors=colors * sh_mask(colors.shape, degree))
-        extra = codes[rig.regions + 1] if config.region_weight else None
+        extra = (codes[rig.regions + 1] if config.region_weight or config.unseen_weight
+                 else None)
         out = render_bound(params, rig, frame, cam, screen_offset=offset, extra_channels=extra,
                            tiles_per_chunk=config.tiles_per_chunk)
         image = out.image[..., :3]
@@ -103,19 +109,30 @@ def make_fit_step(config: FitStepConfig):
         region = jnp.float32(0.0)
         if config.region_weight:
             region = losses.region_loss(out.image[..., 3:], labels[cam, frame], codes)
-        return photo + reg + config.region_weight * region, (out.stats.contributed, dict(
-            photometric=photo, region=region, psnr=losses.psnr(image, target),
-            overflow_tiles=out.stats.overflow_tiles))
+        unseen_region = jnp.float32(0.0)
+        if unseen is not None:
+            unseen_rig, unseen_labels = unseen
+            seen = render_bound(params, unseen_rig, view, view, extra_channels=extra,
+                                tiles_per_chunk=config.tiles_per_chunk)
+            unseen_region = losses.region_loss(seen.image[..., 3:], unseen_labels[view], codes)
+        return (photo + reg + config.region_weight * region
+                + config.unseen_weight * unseen_region), (out.stats.contributed, dict(
+            photometric=photo, region=region, unseen_region=unseen_region,
+            psnr=losses.psnr(image, target), overflow_tiles=out.stats.overflow_tiles))
 
-    def step(state: FitState, rig: Rig, images, labels, cameras):
+    def step(state: FitState, rig: Rig, images, labels, cameras, unseen=None):
         key, k_cam, k_frame = jax.random.split(state.key, 3)
+        if not config.unseen_weight:
+            unseen = None
+        view = jnp.int32(0) if unseen is None else jax.random.randint(
+            jax.random.fold_in(state.key, 1), (), 0, unseen[1].shape[0])
         cam = cameras[jax.random.randint(k_cam, (), 0, cameras.shape[0])]
         frame = jax.random.randint(k_frame, (), 0, rig.vertices.shape[0])
         degree = jnp.minimum(state.step // max(config.sh_every, 1), config.sh_degree or 0)
         offset = jnp.zeros((rig.binding.shape[0], 2), jnp.float32)
         (loss, (visible, aux)), (grads, offset_grad) = jax.value_and_grad(
             loss_fn, argnums=(0, 1), has_aux=True)(state.params, offset, rig, images, labels,
-                                                   cam, frame, degree)
+                                                   cam, frame, degree, unseen, view)
         # optax mixes int32 step counts with floats; keep working under strict promotion.
         with jax.numpy_dtype_promotion("standard"):
             updates, opt_state = opt.update(grads, state.opt_state, state.params)
