@@ -5,14 +5,15 @@ Runs `edit.edit_avatar` + `score.evaluate_avatars` for many `EditConfig`s in one
     each distinct step compiles once;
   * the evaluation sets (ray-cast ideal frames) are cached per (scene, prompt);
   * results go to a JSON file after every variant (atomic write) and a rerun skips variants already
-    there with the same EditConfig, renderer filter and scenes (edited on, scored on), so an
-    interrupted study resumes where it stopped and a changed default or head is re-run, not read
-    back.
+    there with the same EditConfig, renderer filter, scenes (edited on, scored on) and original
+    avatar, so an interrupted study resumes where it stopped and a changed default, head or
+    reconstruction is re-run, not read back.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import os
@@ -24,6 +25,7 @@ from gae_jax import loop
 from gae_jax.edit import edit
 from gae_jax.edit.config import EditConfig, StepConfig
 from gae_jax.evaluation import protocols, score, truth
+from gae_jax.model import avatar as av
 from gae_jax.scene.synthetic import scene_fingerprint
 from gae_jax.util.fileio import atomic_write_bytes
 
@@ -62,7 +64,8 @@ class Bench:
         (the oracle); `eval_scene` is scored instead of `scene` (a scenario that edits on part
         of a scene's training split and is scored on all of it)."""
         scenes = dict(edited_on=scene_fingerprint(scene),
-                      scored_on=scene_fingerprint(eval_scene or scene))
+                      scored_on=scene_fingerprint(eval_scene or scene),
+                      original=avatar_fingerprint(original))
         recorded = self.results.get(name)
         if recorded is not None and same_settings(recorded, config, scenes):
             return recorded
@@ -121,10 +124,21 @@ def renderer_settings() -> dict:
     return dict(cov2d_dilation=projection.COV2D_DILATION)
 
 
+def avatar_fingerprint(avatar: av.Avatar) -> str:
+    """16 hex digits of a hash of the avatar's binding, regions and trainable arrays: the
+    original avatar a record was edited from (a changed reconstruction changes it)."""
+    digest = hashlib.sha256()
+    for name in ("binding", "regions") + tuple(av.TRAINABLE):
+        array = np.ascontiguousarray(np.asarray(getattr(avatar, name)))
+        digest.update(f"{name}{array.dtype}{array.shape}".encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()[:16]
+
+
 def same_settings(record: dict, config: EditConfig, scenes: dict | None = None) -> bool:
     """Whether `record` was made with `config` (fields it predates at their defaults), this
-    renderer and, when given, the scenes {"edited_on", "scored_on": fingerprint} (a record
-    that predates them matches none)."""
+    renderer and, when given, the scenes and original avatar {"edited_on", "scored_on",
+    "original": fingerprint} (a record that predates any of them matches none)."""
     saved = loop.with_defaults(record.get("config", {}), EditConfig)
     return (saved == _jsonable(dataclasses.asdict(config))
             and record.get("renderer") == renderer_settings()
