@@ -1,7 +1,9 @@
 """Region-consistent reconstruction: the colour-only ceiling of every region before and after
 the reconstruction learns where regions end (an oracle study: it reads the ideal edit).
 
-    python benchmarks/region_ceiling.py [--weights 0 0.05 0.1 0.2] [--centre 0.1] [--unseen 0.1]
+    python benchmarks/region_ceiling.py [--weights 0 0.05 0.1 0.2] [--centre 0.1]
+                                        [--unseen 0.1 0.3 1.0]
+                                        [--variant per_face=2 --variant densify_every=100]
                                         [--size 128] [--out benchmarks/results/region_ceiling]
 
 For each region-loss weight (`ReconstructConfig.region_weight`; 0 is colour alone), and for the
@@ -9,7 +11,8 @@ weights of `--centre` with each pixel supervised by its centre label alone inste
 (`label_samples` false), the default 600-step reconstruction of the MakeHuman head is fitted
 (and cached as the train job caches it), and for the weights of `--unseen` the default region
 weight 0.1 with the region loss also in views no camera took (`unseen_weight`; the other
-variants fit none), then scored:
+variants fit none), and for each `--variant` the default reconstruction (weight 0.1, unseen
+0.1) with other `ReconstructConfig` settings, then scored:
   * the reconstruction itself against the unedited truth (mean over the three protocols: whole
     image and each region), which must stay within 0.2 dB of colour alone;
   * for every colour instruction of the suite (`instructions.SUITE`), the region's Gaussians
@@ -22,6 +25,7 @@ Writes `<out>.json` (a rerun skips recorded weights) and `<out>.md`.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -32,6 +36,7 @@ from instructions import SUITE, summary
 
 from gae_jax.edit.config import preset
 from gae_jax.evaluation import metrics, score, truth
+from gae_jax.fit.config import ReconstructConfig
 from gae_jax.model import head
 from gae_jax.run.bench import fmt, write_report
 from gae_jax.run.oracle import recoloured
@@ -40,7 +45,8 @@ from gae_jax.scene import rig as rigs, synthetic
 from gae_jax.scene.types import posed_vertices, training_frames
 from gae_jax.util.fileio import atomic_write_bytes
 
-STYLE = "make it an oil painting"  # no ideal: its evaluation set holds the unedited truth
+STYLE = "make it an oil painting"
+RECONSTRUCT_FIELDS = {f.name for f in dataclasses.fields(ReconstructConfig)} - {"iterations"}  # no ideal: its evaluation set holds the unedited truth
 
 
 def reconstruction_scores(unedited, avatar, capacity) -> dict:
@@ -61,14 +67,31 @@ def reconstruction_scores(unedited, avatar, capacity) -> dict:
     return out
 
 
-def variant_name(weight: float, centre: bool, unseen: float = 0.0) -> str:
-    return f"{weight}" + (" centre" if centre else "") + (f" unseen {unseen}" if unseen else "")
+def variant_name(weight: float, centre: bool, unseen: float = 0.0, settings=()) -> str:
+    return (f"{weight}" + (" centre" if centre else "") + (f" unseen {unseen}" if unseen else "")
+            + "".join(f" {k}={v}" for k, v in settings))
+
+
+def parse_settings(text: str) -> tuple:
+    """"per_face=2,densify_every=100" -> (("per_face", 2), ("densify_every", 100))."""
+    settings = []
+    for item in text.split(","):
+        key, sep, value = item.partition("=")
+        if not sep or key.strip() not in RECONSTRUCT_FIELDS:
+            raise argparse.ArgumentTypeError(
+                f"{item!r}: expected NAME=VALUE with NAME a ReconstructConfig field")
+        try:
+            settings.append((key.strip(), json.loads(value)))
+        except json.JSONDecodeError:
+            raise argparse.ArgumentTypeError(f"{item!r}: the value is not a number or bool")
+    return tuple(settings)
 
 
 def markdown(results: dict, prompts) -> str:
     weights = sorted(results, key=lambda w: (float(w.split()[0]), w))
+    extra = "".join(" --variant " + ",".join(w.split()[3:]) for w in weights if "=" in w)
     lines = ["# Region-consistent reconstruction: the colour-only ceiling per region", "",
-             "Command: `python benchmarks/region_ceiling.py`. The default reconstruction "
+             f"Command: `python benchmarks/region_ceiling.py{extra}`. The default reconstruction "
              "(600 steps, 128 px MakeHuman head) at each region-loss weight; PSNR dB, mean over "
              "the three protocols. Reconstruction: the untouched avatar against the unedited "
              "truth. Ceiling: the region's Gaussians recoloured in closed form, against the "
@@ -76,10 +99,14 @@ def markdown(results: dict, prompts) -> str:
              "untouched avatar, in any protocol. \"centre\": the region loss reads each "
              "pixel's centre label alone instead of its 2 x 2 rays' labels. \"unseen W\": "
              "the same loss also in views no camera took, at weight W (the default "
-             "reconstruction is weight 0.1 unseen 0.1; the other columns fit no such views).",
+             "reconstruction is weight 0.1 unseen 0.1; the other columns fit no such views). "
+             "NAME=VALUE: the default reconstruction with that `ReconstructConfig` setting "
+             "changed (`--variant`).",
              "",
              "| | " + " | ".join(f"weight {w}" for w in weights) + " |",
              "|---" * (len(weights) + 1) + "|"]
+    lines.append("| Gaussians | " + " | ".join(str(results[w]["gaussians"]) for w in weights)
+                 + " |")
     for region in ("whole",) + head.REGIONS:
         lines.append(f"| reconstruction, {region} | " + " | ".join(
             fmt(results[w]["reconstruction"].get(region)) for w in weights) + " |")
@@ -98,8 +125,11 @@ def main(argv=None) -> int:
     p.add_argument("--weights", type=float, nargs="+", default=[0.0, 0.05, 0.1, 0.2])
     p.add_argument("--centre", type=float, nargs="*", default=[0.1],
                    help="weights also fitted on each pixel's centre label alone")
-    p.add_argument("--unseen", type=float, nargs="*", default=[0.1],
+    p.add_argument("--unseen", type=float, nargs="*", default=[0.1, 0.3, 1.0],
                    help="unseen-view label weights also fitted at region weight 0.1")
+    p.add_argument("--variant", type=parse_settings, action="append", default=[],
+                   help="NAME=VALUE[,NAME=VALUE]: the default reconstruction with other "
+                        "ReconstructConfig settings (repeatable)")
     p.add_argument("--size", type=int, default=128)
     p.add_argument("--out", default="benchmarks/results/region_ceiling")
     args = p.parse_args(argv)
@@ -111,15 +141,17 @@ def main(argv=None) -> int:
     unedited = truth.build(scene, STYLE)
     evalsets = {q: truth.build(scene, q) for q in prompts}
     iterations = preset("fast").reconstruct_iterations
-    variants = ([(w, False, 0.0) for w in args.weights] + [(w, True, 0.0) for w in args.centre]
-                + [(0.1, False, u) for u in args.unseen])
-    for w, centre, unseen in variants:
-        name = variant_name(w, centre, unseen)
+    variants = ([(w, False, 0.0, ()) for w in args.weights]
+                + [(w, True, 0.0, ()) for w in args.centre]
+                + [(0.1, False, u, ()) for u in args.unseen]
+                + [(0.1, False, 0.1, v) for v in args.variant])
+    for w, centre, unseen, settings in variants:
+        name = variant_name(w, centre, unseen, settings)
         if name in results:
             continue
         start = time.perf_counter()
-        avatar = original_avatar(scene, iterations, progress=True, region_weight=w,
-                                 label_samples=not centre, unseen_weight=unseen)
+        avatar = original_avatar(scene, iterations, progress=True, **dict(dict(
+            region_weight=w, label_samples=not centre, unseen_weight=unseen), **dict(settings)))
         seconds = time.perf_counter() - start
         capacity = rigs.put_rig(scene, avatar,
                                 posed_vertices(scene, training_frames(scene))).tile_capacity
