@@ -17,6 +17,7 @@ from typing import Callable
 from gae_jax import loop
 from gae_jax.model.flame_io import FlameFileError
 from gae_jax.util.compile import use_persistent_cache
+from gae_jax.util.memory import keep_freed_memory
 from gae_jax.util.fileio import PlyError, cache_root
 
 USER_ERRORS = (ValueError, FileNotFoundError, NotADirectoryError, FileExistsError,
@@ -72,10 +73,13 @@ def compile_cache_folder(choice) -> str | None:
     return None if choice == COMPILE_CACHE_OFF else choice
 
 
-def use_compile_cache(choice) -> None:
-    """Turns the persistent compilation cache on where `--compile-cache` says (an entry point
-    calls this before it compiles anything)."""
-    use_persistent_cache(compile_cache_folder(choice))
+def prepare_process(compile_cache) -> None:
+    """The process-wide settings an entry point makes before it compiles anything: the
+    persistent compilation cache where `--compile-cache` says, and a host allocator that keeps
+    large freed blocks (`memory.keep_freed_memory`: a jitted step's temporaries are not faulted
+    in afresh on every call)."""
+    use_persistent_cache(compile_cache_folder(compile_cache))
+    keep_freed_memory()
 
 
 def given(args: argparse.Namespace, cls) -> dict:

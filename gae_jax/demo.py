@@ -88,7 +88,7 @@ def main(argv=None):
                         help="the built-in head")
     cli.add_compile_cache_flag(parser)
     args = parser.parse_args(argv)
-    cli.use_compile_cache(args.compile_cache)
+    cli.prepare_process(args.compile_cache)
     if args.size < 16 or args.per_face < 1:
         parser.error("--size must be >= 16 and --per-face >= 1")
 

@@ -36,7 +36,7 @@ def main(argv=None) -> int:
     p.add_argument("--clip-folder", default="", help="local CLIP folder for CLIP-S / CLIP-C")
     cli.add_compile_cache_flag(p)
     args = p.parse_args(argv)
-    cli.use_compile_cache(args.compile_cache)
+    cli.prepare_process(args.compile_cache)
     out = {}
 
     def body():

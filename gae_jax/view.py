@@ -69,7 +69,7 @@ def start(args: argparse.Namespace) -> Viewer:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
-    cli.use_compile_cache(args.compile_cache)
+    cli.prepare_process(args.compile_cache)
     out = {}
 
     def body():

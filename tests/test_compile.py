@@ -39,7 +39,7 @@ PROGRAM = """
 import sys
 import jax, jax.numpy as jnp
 from gae_jax import cli
-cli.use_compile_cache(sys.argv[1])
+cli.prepare_process(sys.argv[1])
 # The cache skips programs that compile in under CACHE_MIN_COMPILE_SECONDS; this one takes about
 # that long on an idle machine, so the threshold is lifted here: the test is about the cache.
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
@@ -70,7 +70,7 @@ def test_a_second_run_loads_its_programs_from_the_compilation_cache(tmp_path):
     assert run() == first  # the program came from the cache: nothing new was written
 
 
-def test_every_entry_point_turns_the_compilation_cache_on(monkeypatch, tmp_path):
+def test_every_entry_point_prepares_its_process(monkeypatch, tmp_path):
     from gae_jax import cli, evaluate, reconstruct, train, view
 
     calls = []
@@ -79,7 +79,7 @@ def test_every_entry_point_turns_the_compilation_cache_on(monkeypatch, tmp_path)
         calls.append(choice)
         raise SystemExit(0)  # stop before any work
 
-    monkeypatch.setattr(cli, "use_compile_cache", record)
+    monkeypatch.setattr(cli, "prepare_process", record)
     for entry in (train, reconstruct, evaluate, view, __import__("gae_jax.demo").demo):
         argv = ["--compile-cache", str(tmp_path)] + {evaluate: ["x"], reconstruct: [
             "--out", str(tmp_path / "out")]}.get(entry, [])

@@ -38,7 +38,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
-    cli.use_compile_cache(args.compile_cache)
+    cli.prepare_process(args.compile_cache)
     state = {}
 
     def prepare():
