@@ -45,8 +45,9 @@ from gae_jax.scene import rig as rigs, synthetic
 from gae_jax.scene.types import posed_vertices, training_frames
 from gae_jax.util.fileio import atomic_write_bytes
 
-STYLE = "make it an oil painting"
-RECONSTRUCT_FIELDS = {f.name for f in dataclasses.fields(ReconstructConfig)} - {"iterations"}  # no ideal: its evaluation set holds the unedited truth
+STYLE = "make it an oil painting"  # no ideal: its evaluation set holds the unedited truth
+# What --variant may set: the study fixes the iteration count.
+RECONSTRUCT_FIELDS = {f.name for f in dataclasses.fields(ReconstructConfig)} - {"iterations"}
 
 
 def reconstruction_scores(unedited, avatar, capacity) -> dict:
@@ -150,8 +151,9 @@ def main(argv=None) -> int:
         if name in results:
             continue
         start = time.perf_counter()
-        avatar = original_avatar(scene, iterations, progress=True, **dict(dict(
-            region_weight=w, label_samples=not centre, unseen_weight=unseen), **dict(settings)))
+        avatar = original_avatar(scene, iterations, progress=True, **{
+            "region_weight": w, "label_samples": not centre, "unseen_weight": unseen,
+            **dict(settings)})
         seconds = time.perf_counter() - start
         capacity = rigs.put_rig(scene, avatar,
                                 posed_vertices(scene, training_frames(scene))).tile_capacity

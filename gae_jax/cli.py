@@ -17,8 +17,8 @@ from typing import Callable
 from gae_jax import loop
 from gae_jax.model.flame_io import FlameFileError
 from gae_jax.util.compile import use_persistent_cache
-from gae_jax.util.memory import keep_freed_memory
 from gae_jax.util.fileio import PlyError, cache_root
+from gae_jax.util.memory import keep_freed_memory
 
 USER_ERRORS = (ValueError, FileNotFoundError, NotADirectoryError, FileExistsError,
                FlameFileError, PlyError)
