@@ -1,4 +1,6 @@
-"""Ground-truth images by ray casting a coloured triangle mesh (embree, through embreex).
+"""Ground-truth images by ray casting a coloured triangle mesh (the C++ caster of
+`raycast_kernel`; embree, through embreex, where it is not built or the rays do not share an
+origin).
 
 An independent renderer: it shares nothing with `splat` but the `Camera` convention (OpenCV axes,
 pixel centres at +0.5). Each ray hits the first triangle; its colour is the barycentric
@@ -16,6 +18,7 @@ import dataclasses
 import numpy as np
 
 from gae_jax.render.camera import Camera
+from gae_jax.scene import raycast_kernel
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,22 +73,36 @@ def embree_scene(vertices, faces):
     return scene
 
 
-def _first_hits(scene, face_colors, origins, dirs, background, shade=True, shader=None):
-    """Face (N,) int64 (-1 = miss), distance along the ray (N,) float64 (inf at a miss) and, when
-    `shade`, colour (N, 3) float64: the vertex colours interpolated with embree's barycentrics
-    (u, v of the hit point p = (1 - u - v) a + u b + v c), through `shader` when given.
-    face_colors: (F, 3, K) float64, the K values of each face's corners."""
-    hits = scene.run(np.ascontiguousarray(origins, np.float32),
-                     np.ascontiguousarray(dirs, np.float32), output=1)
-    face_of = hits["primID"].astype(np.int64)
+def _intersect(mesh, origins, dirs):
+    """First hits of rays on `mesh` = (vertices (V, 3), faces (F, 3), embree scene or None):
+    face (N,) int64 (-1 = miss), distance along the ray (N,) float64 (inf at a miss) and
+    barycentrics u, v (N,) float64 of the hit p = (1 - u - v) a + u b + v c. The C++ caster
+    when it can cast these rays, else embree (float32, its scene built here if not given)."""
+    vertices, faces, embree = mesh
+    hits = raycast_kernel.first_hits(vertices, faces, origins, dirs)
+    if hits is not None:
+        return hits
+    embree = embree if embree is not None else embree_scene(vertices, faces)
+    found = embree.run(np.ascontiguousarray(origins, np.float32),
+                       np.ascontiguousarray(dirs, np.float32), output=1)
+    face_of = found["primID"].astype(np.int64)
+    distance = np.where(face_of >= 0, found["tfar"].astype(np.float64), np.inf)
+    return (face_of, distance, found["u"].astype(np.float64),
+            found["v"].astype(np.float64))
+
+
+def _first_hits(mesh, face_colors, origins, dirs, background, shade=True, shader=None):
+    """Face (N,) int64 (-1 = miss), distance along the ray (N,) float64 (inf at a miss) and,
+    when `shade`, colour (N, 3) float64: the vertex colours interpolated with the hits'
+    barycentrics, through `shader` when given. face_colors: (F, 3, K) float64, the K values of
+    each face's corners; mesh: as `_intersect` takes it."""
+    face_of, distance, u, v = _intersect(mesh, origins, dirs)
     hit = face_of >= 0
-    distance = np.where(hit, hits["tfar"].astype(np.float64), np.inf)
     if not shade:
         return face_of, distance, None
     image = np.tile(np.asarray(background, np.float64), (origins.shape[0], 1))
     if hit.any():
-        u, v = hits["u"][hit].astype(np.float64), hits["v"][hit].astype(np.float64)
-        bary = np.clip(np.stack([1 - u - v, u, v], -1), 0, 1)
+        bary = np.clip(np.stack([1 - u[hit] - v[hit], u[hit], v[hit]], -1), 0, 1)
         bary /= bary.sum(-1, keepdims=True)
         values = np.einsum("nk,nkc->nc", bary, face_colors[face_of[hit]])
         image[hit] = values[:, :3] if shader is None else shader(values, face_of[hit])
@@ -109,8 +126,8 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
                   supersample: int = 1, workers: int | None = None,
                   rays: list | None = None, shape: tuple | None = None,
                   shader=None) -> list[RaycastImage]:
-    """`raycast` of one mesh from several cameras, sharing one acceleration structure across
-    `workers` threads (embree releases the GIL; None = one per CPU). `rays`: the cameras'
+    """`raycast` of one mesh from several cameras on `workers` threads (the C++ caster and embree
+    release the GIL; None = one per CPU). `rays`: the cameras'
     `ray_sets(cameras, supersample)`, when the caller casts the same rig again; `shape`: the
     (H, W) the rays form when they are not the cameras' full pixel grids (a subsampled grid).
 
@@ -138,11 +155,11 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
     rays = ray_sets(cameras, supersample) if rays is None else rays
     if len(rays) != len(cameras):
         raise ValueError(f"rays holds {len(rays)} cameras' rays for {len(cameras)} cameras")
-    scene = embree_scene(vertices, faces)
+    mesh = (vertices, faces, None if raycast_kernel.available() else embree_scene(vertices, faces))
     face_colors = colors[faces]
 
     def view(args):
-        return _view(scene, face_colors, regions, *args, background, supersample, shape,
+        return _view(mesh, face_colors, regions, *args, background, supersample, shape,
                      shader)
 
     workers = workers or os.cpu_count() or 1
@@ -152,14 +169,14 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
         return list(pool.map(view, zip(cameras, rays)))
 
 
-def _view(scene, face_colors, regions, camera, rays, background, supersample, shape=None,
+def _view(mesh, face_colors, regions, camera, rays, background, supersample, shape=None,
           shader=None):
     """One camera's RaycastImage: colour from `supersample`^2 stratified rays per pixel; face,
     region and depth from the centre ray (whose colour is one of the samples when the count is
     odd and is not computed when it is even); each colour ray's region in `samples`."""
     origins, dirs = rays[(0.5, 0.5)]
     centre_is_sample = supersample % 2 == 1
-    face_of, distance, centre = _first_hits(scene, face_colors, origins, dirs, background,
+    face_of, distance, centre = _first_hits(mesh, face_colors, origins, dirs, background,
                                             shade=centre_is_sample, shader=shader)
 
     def region_of(faces_hit):
@@ -176,7 +193,7 @@ def _view(scene, face_colors, regions, camera, rays, background, supersample, sh
                     image += centre
                     samples.append(region_of(face_of))
                     continue
-                hit_faces, _, colour = _first_hits(scene, face_colors,
+                hit_faces, _, colour = _first_hits(mesh, face_colors,
                                                    *rays[(float(ox), float(oy))], background,
                                                    shader=shader)
                 image += colour
