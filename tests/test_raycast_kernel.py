@@ -12,8 +12,10 @@ pytestmark = pytest.mark.skipif(not raycast_kernel.available(),
 
 # Both sides compute in float64; they differ by the order of their arithmetic.
 FLOAT64_TOLERANCE = 1e-9
-# embree intersects in float32: hit points agree to its precision at the head's scale (metres).
+# embree intersects in float32: hit points agree to its precision at the head's scale (metres),
+# colours mixed by its barycentrics to a few float32 roundings.
 EMBREE_POINT_TOLERANCE = 2e-4
+EMBREE_COLOUR_TOLERANCE = 1e-5
 
 
 def brute_force_first_hits(vertices, faces, origins, dirs):
@@ -54,7 +56,7 @@ def random_triangles(rng, count=40):
 
 
 def assert_same_hits(found, expected):
-    face, t, u, v = found
+    face, t, u, v = found[:4]
     face_ref, t_ref, u_ref, v_ref = expected
     np.testing.assert_array_equal(face, face_ref)
     hit = face_ref >= 0
@@ -72,6 +74,39 @@ def test_first_hits_match_brute_force_on_overlapping_triangles(offset):
     expected = brute_force_first_hits(vertices, faces, origins, dirs)
     assert 0.3 < np.mean(expected[0] >= 0) < 1.0  # hits and misses both tested
     assert_same_hits(raycast_kernel.first_hits(vertices, faces, origins, dirs), expected)
+
+
+def test_corner_values_are_mixed_by_the_hits_barycentrics():
+    rng = np.random.default_rng(3)
+    vertices, faces = random_triangles(rng)
+    corner_values = rng.uniform(-1, 1, (len(faces), 3, 5))
+    origins, dirs = camera_rays((0, 0, 0), (0, 0, 1), offset=(0.75, 0.25))
+    face, _, u, v = brute_force_first_hits(vertices, faces, origins, dirs)
+    hit = face >= 0
+    expected = np.zeros((len(dirs), 5))
+    expected[hit] = np.einsum("nk,nkc->nc", np.stack([1 - u - v, u, v], -1)[hit],
+                              corner_values[face[hit]])
+    hits = raycast_kernel.first_hits(vertices, faces, origins, dirs, corner_values)
+    np.testing.assert_allclose(hits.values, expected, rtol=0, atol=FLOAT64_TOLERANCE)
+    assert raycast_kernel.first_hits(vertices, faces, origins, dirs).values is None
+
+
+def test_images_are_the_same_cast_by_the_kernel_or_by_embree(monkeypatch):
+    rng = np.random.default_rng(4)
+    vertices, faces = random_triangles(rng)
+    colours = rng.uniform(0, 1, (len(vertices), 3))
+    regions = np.arange(len(faces)) % 4
+    camera = make_camera(look_at_w2c(np.zeros(3), np.array([0.0, 0.0, 1.0])), 32, 32,
+                         fov_degrees=70.0)
+    ours = raycast.raycast(vertices, faces, colours, regions, camera, supersample=2)
+    monkeypatch.setattr(raycast_kernel, "first_hits", lambda *args: None)
+    theirs = raycast.raycast(vertices, faces, colours, regions, camera, supersample=2)
+    same = np.all(ours.samples == theirs.samples, -1) & (ours.faces == theirs.faces)
+    assert same.mean() > 0.99  # the rest have a ray grazing an edge
+    np.testing.assert_allclose(ours.image[same], theirs.image[same], rtol=0,
+                               atol=EMBREE_COLOUR_TOLERANCE)
+    np.testing.assert_allclose(ours.depth[same & ours.hit], theirs.depth[same & ours.hit],
+                               rtol=1e-5)
 
 
 def test_triangles_reaching_behind_the_eye_match_brute_force():
@@ -94,7 +129,8 @@ def test_no_ray_slips_between_triangles_that_share_an_edge():
     dirs = np.concatenate([f[:, None] * ring[k] + (1 - f[:, None]) * vertices[0]
                            for k in range(6) for f in [fractions]])
     origins = np.zeros_like(dirs)
-    face, t, _, _ = raycast_kernel.first_hits(vertices, faces, origins, dirs)
+    hits = raycast_kernel.first_hits(vertices, faces, origins, dirs)
+    face, t = hits.face, hits.distance
     assert np.all(face >= 0)
     np.testing.assert_allclose(t, 1.0, rtol=0, atol=FLOAT64_TOLERANCE)
 
@@ -110,7 +146,8 @@ def test_first_hits_match_embree_on_the_default_head():
     agree, total = 0, 0
     for camera in synthetic.rig_cameras(intrinsics, w2c, 64)[::3]:
         origins, dirs = raycast.camera_rays(camera, (0.25, 0.75))
-        face, t, _, _ = raycast_kernel.first_hits(vertices, faces, origins, dirs)
+        hits = raycast_kernel.first_hits(vertices, faces, origins, dirs)
+        face, t = hits.face, hits.distance
         found = embree.run(origins.astype(np.float32), dirs.astype(np.float32), output=1)
         same = face == found["primID"]
         agree, total = agree + same.sum(), total + len(face)
@@ -131,7 +168,8 @@ def test_rays_it_cannot_cast_fall_back_to_embree():
     assert raycast_kernel.first_hits(vertices, faces, np.concatenate([origins, origins]),
                                      behind) is None
     mesh = (vertices, faces, None)
-    face, t, _, _ = raycast._intersect(mesh, apart, dirs)  # embree, built on the spot
+    hits = raycast._intersect(mesh, apart, dirs)  # embree, built on the spot
+    face, t = hits.face, hits.distance
     expected = brute_force_first_hits(vertices, faces, apart, dirs)
     assert np.mean(face == expected[0]) > 0.999
     hit = (face >= 0) & (face == expected[0])
@@ -147,3 +185,5 @@ def test_bad_inputs_are_refused_in_one_line():
         raycast_kernel.first_hits(vertices, faces, origins, dirs[:-1])
     with pytest.raises(ValueError, match="vertices must be"):
         raycast_kernel.first_hits(vertices[:, :2], faces, origins, dirs)
+    with pytest.raises(ValueError, match="corner_values must be"):
+        raycast_kernel.first_hits(vertices, faces, origins, dirs, np.zeros((len(faces), 2, 3)))

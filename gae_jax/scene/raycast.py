@@ -73,13 +73,12 @@ def embree_scene(vertices, faces):
     return scene
 
 
-def _intersect(mesh, origins, dirs):
-    """First hits of rays on `mesh` = (vertices (V, 3), faces (F, 3), embree scene or None):
-    face (N,) int64 (-1 = miss), distance along the ray (N,) float64 (inf at a miss) and
-    barycentrics u, v (N,) float64 of the hit p = (1 - u - v) a + u b + v c. The C++ caster
-    when it can cast these rays, else embree (float32, its scene built here if not given)."""
+def _intersect(mesh, origins, dirs, corner_values=None) -> raycast_kernel.Hits:
+    """First hits of rays on `mesh` = (vertices (V, 3), faces (F, 3), embree scene or None), and
+    `corner_values` (F, 3, K) mixed at them when given: the C++ caster when it can cast these
+    rays, else embree (float32, its scene built here if not given; values left to the caller)."""
     vertices, faces, embree = mesh
-    hits = raycast_kernel.first_hits(vertices, faces, origins, dirs)
+    hits = raycast_kernel.first_hits(vertices, faces, origins, dirs, corner_values)
     if hits is not None:
         return hits
     embree = embree if embree is not None else embree_scene(vertices, faces)
@@ -87,26 +86,32 @@ def _intersect(mesh, origins, dirs):
                        np.ascontiguousarray(dirs, np.float32), output=1)
     face_of = found["primID"].astype(np.int64)
     distance = np.where(face_of >= 0, found["tfar"].astype(np.float64), np.inf)
-    return (face_of, distance, found["u"].astype(np.float64),
-            found["v"].astype(np.float64))
+    return raycast_kernel.Hits(face_of, distance, found["u"].astype(np.float64),
+                               found["v"].astype(np.float64))
 
 
 def _first_hits(mesh, face_colors, origins, dirs, background, shade=True, shader=None):
     """Face (N,) int64 (-1 = miss), distance along the ray (N,) float64 (inf at a miss) and,
-    when `shade`, colour (N, 3) float64: the vertex colours interpolated with the hits'
-    barycentrics, through `shader` when given. face_colors: (F, 3, K) float64, the K values of
-    each face's corners; mesh: as `_intersect` takes it."""
-    face_of, distance, u, v = _intersect(mesh, origins, dirs)
-    hit = face_of >= 0
+    when `shade`, colour (N, 3) float64: the corner values mixed with the hits' barycentrics
+    (clipped to [0, 1], renormalised), through `shader` when given. face_colors: (F, 3, K)
+    float64, the K values of each face's corners; mesh: as `_intersect` takes it."""
+    hits = _intersect(mesh, origins, dirs, face_colors if shade else None)
+    face_of, hit = hits.face, hits.face >= 0
     if not shade:
-        return face_of, distance, None
-    image = np.tile(np.asarray(background, np.float64), (origins.shape[0], 1))
-    if hit.any():
-        bary = np.clip(np.stack([1 - u[hit] - v[hit], u[hit], v[hit]], -1), 0, 1)
+        return face_of, hits.distance, None
+    values = hits.values
+    if values is None:
+        u, v = hits.u[hit], hits.v[hit]
+        bary = np.clip(np.stack([1 - u - v, u, v], -1), 0, 1)
         bary /= bary.sum(-1, keepdims=True)
-        values = np.einsum("nk,nkc->nc", bary, face_colors[face_of[hit]])
-        image[hit] = values[:, :3] if shader is None else shader(values, face_of[hit])
-    return face_of, distance, image
+        values = np.zeros((len(face_of), face_colors.shape[2]))
+        values[hit] = np.einsum("nk,nkc->nc", bary, face_colors[face_of[hit]])
+    if shader is None:
+        image = np.where(hit[:, None], values[:, :3], np.asarray(background, np.float64))
+    else:
+        image = np.tile(np.asarray(background, np.float64), (len(face_of), 1))
+        image[hit] = shader(values[hit], face_of[hit])
+    return face_of, hits.distance, image
 
 
 def raycast(vertices, faces, vertex_colors, face_regions, camera: Camera,

@@ -13,6 +13,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import importlib.util
+from typing import NamedTuple, Optional
 
 import numpy as np
 
@@ -20,6 +21,19 @@ MODULE = "gae_jax.scene._raycast_cpu"
 
 _DOUBLES = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
 _INT64S = np.ctypeslib.ndpointer(np.int64, flags="C_CONTIGUOUS")
+
+
+class Hits(NamedTuple):
+    """First hits of N rays: face (N,) int64 (-1 = miss), distance (N,) float64 along the
+    directions (inf = miss), u, v (N,) float64 barycentrics (the hit is (1 - u - v) a + u b + v c
+    of the face's corners), values (N, K) float64: the corner values mixed at the hit (0 at a
+    miss), when asked for, else None."""
+
+    face: np.ndarray
+    distance: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    values: Optional[np.ndarray] = None
 
 
 @functools.cache
@@ -34,7 +48,8 @@ def _open() -> tuple:
         return None, f"{spec.origin} did not load: {error}"
     function.restype = ctypes.c_int
     function.argtypes = [_DOUBLES, ctypes.c_int64, _INT64S, ctypes.c_int64, _DOUBLES, _DOUBLES,
-                         ctypes.c_int64, _INT64S, _DOUBLES, _DOUBLES, _DOUBLES]
+                         ctypes.c_int64, _INT64S, _DOUBLES, _DOUBLES, _DOUBLES, ctypes.c_void_p,
+                         ctypes.c_int64, ctypes.c_void_p]
     return function, None
 
 
@@ -49,16 +64,15 @@ def why_unavailable() -> str | None:
 
 
 def first_hits(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray,
-               dirs: np.ndarray) -> tuple | None:
+               dirs: np.ndarray, corner_values: np.ndarray | None = None) -> Hits | None:
     """First hit of each ray on the mesh, or None when the kernel cannot cast these rays (not
     built, origins not all one point, directions spread wider than about 87 degrees from their
     mean).
 
     Args:
-      vertices: (V, 3); faces: (F, 3) int indices into vertices; origins, dirs: (N, 3).
-    Returns:
-      face (N,) int64 (-1 = miss), t (N,) float64 along dirs (inf = miss), u, v (N,) float64:
-      the hit is (1 - u - v) a + u b + v c of the face's corners a, b, c.
+      vertices: (V, 3); faces: (F, 3) int indices into vertices; origins, dirs: (N, 3);
+      corner_values: (F, 3, K) values at each face's corners to mix at the hits by the
+        barycentrics clipped to [0, 1] and renormalised, or None.
     """
     origins = np.ascontiguousarray(origins, np.float64)
     dirs = np.ascontiguousarray(dirs, np.float64)
@@ -69,6 +83,11 @@ def first_hits(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray,
             raise ValueError(f"{name} must be (n, 3), got {array.shape}")
     if dirs.shape != origins.shape:
         raise ValueError(f"dirs must be {origins.shape} like origins, got {dirs.shape}")
+    if corner_values is not None:
+        corner_values = np.ascontiguousarray(corner_values, np.float64)
+        if corner_values.ndim != 3 or corner_values.shape[:2] != (len(faces), 3):
+            raise ValueError(f"corner_values must be ({len(faces)}, 3, K), got "
+                             f"{corner_values.shape}")
     function = _open()[0]
     if function is None:
         return None
@@ -78,8 +97,11 @@ def first_hits(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray,
     count = len(dirs)
     face, t = np.empty(count, np.int64), np.empty(count)
     u, v = np.empty(count), np.empty(count)
+    num_values = 0 if corner_values is None else corner_values.shape[2]
+    values = None if corner_values is None else np.empty((count, num_values))
     status = function(vertices, len(vertices), faces, len(faces), origins, dirs, count, face, t,
-                      u, v)
+                      u, v, None if values is None else corner_values.ctypes.data, num_values,
+                      None if values is None else values.ctypes.data)
     if status != 0:
         return None
-    return face, t, u, v
+    return Hits(face, t, u, v, values)

@@ -52,14 +52,16 @@ constexpr double kMinAxisCosine = 0.05;
 }  // namespace
 
 // vertices (V, 3), faces (F, 3) int64 into vertices, origins (N, 3), dirs (N, 3). Writes face
-// (N,) int64 (-1 = miss), t (N,) along dirs (inf = miss), u (N,), v (N,). Returns 0, or 1 (then
-// nothing is written) when the origins are not all one point or the directions do not all lean
-// along their sum by kMinAxisCosine.
+// (N,) int64 (-1 = miss), t (N,) along dirs (inf = miss), u (N,), v (N,), and, when
+// corner_values (F, 3, K) is given, values_out (N, K): the hit face's corner values mixed by the
+// hit's barycentrics (0 at a miss). Returns 0, or 1 (then nothing is written) when the origins
+// are not all one point or the directions do not all lean along their sum by kMinAxisCosine.
 extern "C" int GaeFirstHitsFromPoint(const double* vertices, int64_t num_vertices,
                                      const int64_t* faces, int64_t num_faces,
                                      const double* origins, const double* dirs,
                                      int64_t num_rays, int64_t* face_out, double* t_out,
-                                     double* u_out, double* v_out) {
+                                     double* u_out, double* v_out, const double* corner_values,
+                                     int64_t num_values, double* values_out) {
   if (num_rays == 0) return 0;
   const Vec3 eye = Load(origins);
   bool shared = true;
@@ -206,6 +208,18 @@ extern "C" int GaeFirstHitsFromPoint(const double* vertices, int64_t num_vertice
     t_out[r] = hit ? best_volume[i] / best_sum[i] : std::numeric_limits<double>::infinity();
     u_out[r] = hit ? best_wb[i] / best_signed_sum[i] : 0.0;
     v_out[r] = hit ? best_wc[i] / best_signed_sum[i] : 0.0;
+    if (corner_values == nullptr) continue;
+    // The corners' values mixed by the clipped, renormalised barycentrics (as the Python
+    // shading mixes embree's): (max(1 - u - v, 0), u, v) over their sum.
+    const double u = u_out[r], v = v_out[r], w = std::max(1.0 - u - v, 0.0);
+    const double total = w + u + v;
+    const double* corners = corner_values + 3 * num_values * (hit ? best_face[i] : 0);
+    for (int64_t k = 0; k < num_values; ++k) {
+      values_out[r * num_values + k] =
+          hit ? (w * corners[k] + u * corners[num_values + k] + v * corners[2 * num_values + k]) /
+                    total
+              : 0.0;
+    }
   }
   return 0;
 }
