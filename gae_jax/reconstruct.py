@@ -42,7 +42,9 @@ HELP = dict(
     "the centre ray's label alone)", unseen_weight="weight of the region loss in views no "
     "camera took: cameras between two training cameras, poses between two training frames "
     "with the expression up to 1.25x as strong, labelled by the tracked mesh alone (0: off)",
-    unseen_views="how many such views are drawn once before the fit", sh_degree="SH degree (empty: plain RGB)",
+    unseen_views="how many such views are drawn once before the fit",
+    unseen_from="fraction of the iterations after which those views join the loss (0: from "
+    "the first step)", sh_degree="SH degree (empty: plain RGB)",
     sh_every="steps between SH band growths", densify_every="steps between densify rounds "
     "(0: never)", densify_from="first densify step", densify_until="last densify step as a "
     "fraction of the iterations", grad_threshold="screen-gradient threshold of densification",

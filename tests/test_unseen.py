@@ -118,3 +118,14 @@ def test_a_fit_taught_unseen_views_keeps_regions_apart_in_views_it_never_saw(sce
     (r0, p0), (r1, p1) = results[0.0], results[0.5]
     assert r1 < 0.85 * r0, results
     assert p1 < 1.25 * p0, results
+
+
+def test_unseen_views_join_the_loss_from_the_fraction_of_the_fit_asked(scene):
+    _, history = fit(scene, ReconstructConfig(iterations=12, region_weight=0.3,
+                                              unseen_weight=0.5, unseen_views=4,
+                                              unseen_from=0.5))
+    unseen = np.array([h["unseen_region"] for h in history])
+    assert np.all(unseen[:6] == 0) and np.all(unseen[6:] > 0), unseen
+    for bad in (-0.1, 1.0):
+        with pytest.raises(ValueError, match="unseen_from"):
+            ReconstructConfig(unseen_from=bad)

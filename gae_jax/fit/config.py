@@ -21,7 +21,9 @@ class ReconstructConfig:
     (`scene.unseen`: between the training cameras and frames, the expression carried a quarter
     further; the tracked mesh's labels alone), one of them rendered beside each step's training
     view: a region's Gaussians then end where the region does in views they were not fitted
-    in, so that recolouring them does not paint their neighbours there.
+    in, so that recolouring them does not paint their neighbours there. `unseen_from`: the
+    fraction of the iterations after which those views join (0: from the first step; the steps
+    before it render the training view alone).
 
     The Gaussian budget: `per_face` at the start, `max_gaussians` at most (0: no cap). Resolution
     is the scene's. `tile_capacity` 0 sizes the per-tile lists from the initial avatar.
@@ -45,6 +47,7 @@ class ReconstructConfig:
     label_samples: bool = True
     unseen_weight: float = 0.1
     unseen_views: int = 64
+    unseen_from: float = 0.0
     sh_degree: Optional[int] = None
     sh_every: int = 500
     densify_every: int = 0
@@ -73,6 +76,9 @@ class ReconstructConfig:
         if not (self.unseen_weight >= 0 and self.unseen_views >= 1):
             raise ValueError(f"unseen_weight must be >= 0 and unseen_views >= 1, got "
                              f"{self.unseen_weight} and {self.unseen_views}")
+        if not 0 <= self.unseen_from < 1:
+            raise ValueError(f"unseen_from is a fraction of the iterations in [0, 1), got "
+                             f"{self.unseen_from}")
         if not self.screen_filter >= 0:
             raise ValueError(f"screen_filter is px^2 added to a covariance, >= 0; got "
                              f"{self.screen_filter}")

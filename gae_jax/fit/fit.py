@@ -136,8 +136,10 @@ def fit(scene: Scene, config: ReconstructConfig = ReconstructConfig(),
                                  loss=f"{h['loss']:.4f}", psnr=f"{h['psnr']:.2f}",
                                  n=int(h["num_gaussians"])))
     densify_stop = int(config.densify_until * config.iterations)
+    unseen_start = int(config.unseen_from * config.iterations)
     for i in range(int(state.step), config.iterations):
-        state, metrics = step(state, rig, images, labels, cameras, unseen)
+        state, metrics = step(state, rig, images, labels, cameras,
+                              unseen if i >= unseen_start else None)
         recorder.push(i + 1, metrics)
         done = i + 1
         if (config.densify_every and config.densify_from <= done < densify_stop
