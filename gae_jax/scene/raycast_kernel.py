@@ -4,8 +4,9 @@
 through ctypes, which releases the GIL, so views cast on threads run in parallel. It bins a
 camera's rays by where they cross its image plane and intersects each triangle only with the rays
 under its projected bounding box, exactly, in float64: the hits embree finds (in float32), with
-float64 distances and barycentrics. When it is not built, or the rays do not share an origin,
-`first_hits` returns None and the caller casts with embree.
+float64 distances and barycentrics, and the hit faces' corner values mixed there when asked.
+When it is not built, or the rays do not share an origin or spread wider than about 87 degrees
+from their summed direction, `first_hits` returns None and the caller casts with embree.
 """
 
 from __future__ import annotations

@@ -2,8 +2,9 @@
 //
 // The rays are binned by where they cross the plane z = 1 of a frame whose z axis every ray
 // points along (a pinhole's image plane); each triangle in front of the eye then meets only the
-// rays in the cells under its projected bounding box, and each of those is intersected exactly
-// (Moller-Trumbore in double). A triangle that reaches behind the eye's plane meets every ray.
+// rays in the cells under its projected bounding box, and each of those is tested in double
+// against the planes through the eye and the triangle's edges, four rays at a time. A triangle
+// that reaches behind the eye's plane meets every ray.
 // Barycentrics follow embree's convention: the hit is (1 - u - v) a + u b + v c. The nearest hit
 // at t > 0 wins; on an exact tie the triangle listed first.
 
@@ -29,6 +30,9 @@ inline Vec3 Load(const double* p) { return {p[0], p[1], p[2]}; }
 
 // Rays per grid cell on average: fewer cells cost the binning, more the triangles' cell walks.
 constexpr double kRaysPerCell = 4.0;
+constexpr int64_t kMaxCellsPerAxis = 4096;
+// Rays further than this (cosine) from their summed direction land too far out on z = 1.
+constexpr double kMinAxisCosine = 0.05;
 // Rays tested together (one vector of doubles); a cell's run is padded to a multiple of it.
 constexpr int64_t kLanes = 4;
 using Lanes = double __attribute__((vector_size(kLanes * sizeof(double))));
@@ -45,9 +49,6 @@ inline Lanes Select(Bits mask, Lanes a, Lanes b) {
   return (Lanes)(((Bits)a & mask) | ((Bits)b & ~mask));
 }
 inline Lanes Abs(Lanes x) { return (Lanes)((Bits)x & INT64_MAX); }
-constexpr int64_t kMaxCellsPerAxis = 4096;
-// Rays further than this from the mean direction (cosine) land too far out on the plane z = 1.
-constexpr double kMinAxisCosine = 0.05;
 
 }  // namespace
 
