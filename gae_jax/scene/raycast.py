@@ -132,8 +132,8 @@ def raycast_views(vertices, faces, vertex_colors, face_regions, cameras, backgro
                   rays: list | None = None, shape: tuple | None = None,
                   shader=None) -> list[RaycastImage]:
     """`raycast` of one mesh from several cameras on `workers` threads (the C++ caster and embree
-    release the GIL; None = one per CPU). `rays`: the cameras'
-    `ray_sets(cameras, supersample)`, when the caller casts the same rig again; `shape`: the
+    release the GIL; None = one per CPU). `rays`: the cameras' `ray_sets(cameras, supersample)`,
+    when the caller casts the same rig again; `shape`: the
     (H, W) the rays form when they are not the cameras' full pixel grids (a subsampled grid).
 
     `shader(values (N, K), faces (N,)) -> (N, 3)` colours each ray's hit from the K values of

@@ -68,7 +68,7 @@ def first_hits(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray,
                dirs: np.ndarray, corner_values: np.ndarray | None = None) -> Hits | None:
     """First hit of each ray on the mesh, or None when the kernel cannot cast these rays (not
     built, origins not all one point, directions spread wider than about 87 degrees from their
-    mean).
+    summed direction).
 
     Args:
       vertices: (V, 3); faces: (F, 3) int indices into vertices; origins, dirs: (N, 3);
