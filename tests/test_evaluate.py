@@ -6,7 +6,7 @@ import pytest
 
 from gae_jax import evaluate
 from gae_jax.evaluation import lpips, metrics, protocols
-from gae_jax.model import head
+from gae_jax.model import flame, head
 from gae_jax.scene import synthetic
 from tests.test_losses import naive_ssim
 
@@ -183,7 +183,7 @@ def test_the_ideal_stripes_are_decided_per_ray_from_the_rest_height(tmp_path):
     frames = truth.frames_truth(one_ray, protocols.protocol_frames(one_ray, "novel_view", 1),
                                 ideal)
     name, t = frames.pairs[0]
-    verts = np.asarray(synthetic._posed(scene.model, scene.sequences[name].params(
+    verts = np.asarray(flame.lbs(scene.model, scene.sequences[name].params(
         scene.shapes["A"], t)))
     camera = scene.camera(frames.cameras[0])
     faces = np.asarray(scene.model.faces)

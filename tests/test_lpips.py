@@ -69,3 +69,15 @@ def test_lpips_rejects_bad_input():
         lpips.lpips(images(0), images(1)[:, :32])
     with pytest.raises(ValueError, match="at least 32"):
         lpips.lpips(images(0, (16, 16, 3)), images(1, (16, 16, 3)))
+
+
+def test_lpips_map_is_the_same_in_batches_of_any_size():
+    # the map runs MAP_CHUNK images per call, the last chunk padded: a batch across a chunk
+    # boundary scores each image as alone
+    count = lpips.MAP_CHUNK + 1
+    a, b = images(3, (count, 40, 56, 3)), images(4, (count, 40, 56, 3))
+    together = lpips.lpips_map(a.reshape(1, count, 40, 56, 3), b.reshape(1, count, 40, 56, 3))
+    assert together.shape == (1, count, 40, 56)
+    alone = np.stack([lpips.lpips_map(a[i], b[i]) for i in range(count)])
+    np.testing.assert_allclose(together[0], alone, rtol=1e-5, atol=1e-7)
+    assert np.ptp(alone, axis=(1, 2)).min() > 0  # real maps, not a constant

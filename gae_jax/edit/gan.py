@@ -64,20 +64,26 @@ class Discriminator(nn.Module):
 def init_params(key: jax.Array, image_size: tuple) -> dict:
     """Parameters of `Discriminator()` for (H, W) inputs, as its own initialisers define them
     (kernels N(0, 0.02), biases zero), with every kernel cut from one draw of normals: XLA:CPU
-    compiles one threefry program in ~0.3 s and took ~2.2 s for one per layer."""
+    compiles one threefry program in ~0.3 s and took ~2.2 s for one per layer; the kernels
+    are cut and the biases made in that program too (eagerly, each slice compiled its own)."""
     shapes = jax.eval_shape(Discriminator().init, key,
                             jax.ShapeDtypeStruct((1,) + tuple(image_size) + (6,), jnp.float32))
     leaves, treedef = jax.tree_util.tree_flatten_with_path(shapes)
-    kernels = [leaf for path, leaf in leaves if path[-1].key == "kernel"]
-    draw = jax.jit(lambda k: 0.02 * jax.random.normal(k, (sum(x.size for x in kernels),)))(key)
-    out, start = [], 0
-    for path, leaf in leaves:
-        if path[-1].key == "kernel":
-            out.append(draw[start:start + leaf.size].reshape(leaf.shape).astype(leaf.dtype))
-            start += leaf.size
-        else:
-            out.append(jnp.zeros(leaf.shape, leaf.dtype))
-    return jax.tree_util.tree_unflatten(treedef, out)
+    leaves = [(path[-1].key == "kernel", leaf) for path, leaf in leaves]
+
+    def draw(k):
+        normals = 0.02 * jax.random.normal(k, (sum(x.size for kernel, x in leaves if kernel),))
+        out, start = [], 0
+        for kernel, leaf in leaves:
+            if kernel:
+                out.append(normals[start:start + leaf.size].reshape(leaf.shape).astype(
+                    leaf.dtype))
+                start += leaf.size
+            else:
+                out.append(jnp.zeros(leaf.shape, leaf.dtype))
+        return jax.tree_util.tree_unflatten(treedef, out)
+
+    return jax.jit(draw)(key)
 
 
 def output_size(size: int, strides: Sequence[int] = (2, 2, 2, 1, 1)) -> int:

@@ -78,8 +78,9 @@ def initial_state(config: StepConfig, params: dict, image_size: tuple, key) -> E
     (H, W) images from `key`."""
     params = jax.tree_util.tree_map(jnp.array, params)
     d_params = gan.init_params(key, image_size)
-    return EditState(params, avatar_optimizer(config).init(params), d_params,
-                     discriminator_optimizer(config).init(d_params), jnp.int32(0),
+    # the optimisers' states made in one program each (eagerly, a program per array shape)
+    return EditState(params, jax.jit(avatar_optimizer(config).init)(params), d_params,
+                     jax.jit(discriminator_optimizer(config).init)(d_params), jnp.int32(0),
                      jax.tree_util.tree_map(jnp.array, params),
                      jnp.array(base_colour(jnp.asarray(params["colors"]))))  # a copy: donated
 

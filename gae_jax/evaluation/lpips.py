@@ -16,6 +16,7 @@ import pickle
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 SHIFT = (-0.030, -0.088, -0.188)
 SCALE = (0.458, 0.448, 0.450)
@@ -98,7 +99,16 @@ def lpips(a, b) -> jax.Array:
     return _lpips(load_weights(), x, y).reshape(lead)
 
 
-def lpips_map(a, b) -> jax.Array:
-    """(..., H, W) per-pixel LPIPS of (..., H, W, 3) images in [0, 1]."""
+MAP_CHUNK = 6  # images per call of the map's program: one compilation for batches of any size
+
+
+def lpips_map(a, b) -> np.ndarray:
+    """(..., H, W) per-pixel LPIPS (numpy) of (..., H, W, 3) images in [0, 1], `MAP_CHUNK`
+    images at a time (the last chunk padded)."""
     x, y, lead = _batched(a, b)
-    return _lpips_map(load_weights(), x, y).reshape(lead + x.shape[1:3])
+    x, y, count = np.asarray(x), np.asarray(y), x.shape[0]
+    x, y = (np.concatenate([z, np.zeros((-count % MAP_CHUNK,) + z.shape[1:], z.dtype)])
+            for z in (x, y))
+    maps = [np.asarray(_lpips_map(load_weights(), x[i:i + MAP_CHUNK], y[i:i + MAP_CHUNK]))
+            for i in range(0, len(x), MAP_CHUNK)]
+    return np.concatenate(maps)[:count].reshape(lead + x.shape[1:3])

@@ -57,7 +57,7 @@ def initial_state(params: dict, config: FitStepConfig, key) -> FitState:
     """A fresh state for `params` (copied: the step donates its state)."""
     params = jax.tree_util.tree_map(jnp.array, params)
     n = params["means"].shape[0]
-    return FitState(params, optimizer(config).init(params), key, jnp.int32(0),
+    return FitState(params, jax.jit(optimizer(config).init)(params), key, jnp.int32(0),
                     jnp.zeros((n,), jnp.float32), jnp.zeros((n,), jnp.int32))
 
 

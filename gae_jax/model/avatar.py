@@ -14,6 +14,7 @@ inherit their parent's binding and region, and pruning never removes the last Ga
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -146,8 +147,10 @@ def quat_multiply(a: jax.Array, b: jax.Array) -> jax.Array:
                       aw * bz + ax * by - ay * bx + az * bw], axis=-1)
 
 
+@jax.jit
 def deform(avatar: Avatar, vertices: jax.Array, faces: jax.Array) -> Gaussians:
-    """World-space Gaussians of an avatar on a posed mesh ((V, 3) vertices, (F, 3) faces)."""
+    """World-space Gaussians of an avatar on a posed mesh ((V, 3) vertices, (F, 3) faces).
+    Jitted: called on the host it compiles one program, not one per operation."""
     rotations, scales, centroids = face_frames(vertices, faces)
     rot, k, origin = (x[avatar.binding] for x in (rotations, scales, centroids))
     means = k[:, None] * jnp.einsum("nab,nb->na", rot, avatar.means) + origin
@@ -159,6 +162,7 @@ def deform(avatar: Avatar, vertices: jax.Array, faces: jax.Array) -> Gaussians:
                      opacities=jax.nn.sigmoid(avatar.opacity_logits), colors=avatar.colors)
 
 
+@functools.partial(jax.jit, static_argnames=("per_face", "sh_degree", "opacity", "normal_scale"))
 def init_from_mesh(vertices, faces, vertex_colors, face_regions, *, per_face: int = 1,
                    sh_degree: int | None = 0, key=None, opacity: float = INIT_OPACITY,
                    normal_scale: float = 1.0) -> Avatar:
@@ -174,6 +178,7 @@ def init_from_mesh(vertices, faces, vertex_colors, face_regions, *, per_face: in
       opacity: initial opacity (GaussianAvatars: 0.1).
       normal_scale: scale factor along the face normal (1: spheres as GaussianAvatars; < 1:
         surfel-like discs that cover the surface without thickness).
+    Jitted (the keyword settings static).
     """
     if per_face < 1:
         raise ValueError(f"per_face must be >= 1, got {per_face}")

@@ -10,6 +10,7 @@ Reading and writing model files, and GaussianAvatars' teeth, live in `flame_io`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Optional
 
 import jax
@@ -135,8 +136,10 @@ def shaped_vertices(model: FlameModel, params: FlameParams) -> jax.Array:
     return v
 
 
+@functools.partial(jax.jit, static_argnames="return_joints")
 def lbs(model: FlameModel, params: FlameParams, return_joints: bool = False):
-    """Posed vertices (V, 3) of one frame (and (J, 3) posed joints when asked)."""
+    """Posed vertices (V, 3) of one frame (and (J, 3) posed joints when asked). Jitted: called
+    on the host it compiles one program per model and dtype, not one per operation (~40)."""
     v_shaped = shaped_vertices(model, params)
     joints = model.j_regressor @ v_shaped
     num_joints = len(model.parents)

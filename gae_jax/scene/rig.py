@@ -135,10 +135,22 @@ def render_bound(params: dict, rig: Rig, frame, cam, *, blend: wabe.Blend = wabe
 def required_capacity(params: dict, rig: Rig, cameras, frame: int = 0) -> int:
     """1.25x the busiest tile of the avatar over the given cameras at one frame, rounded up to
     128 (a 25 % margin for the motion and the edit's changes)."""
-    load = jax.jit(lambda p, r, cam: splat.tile_load(gaussians_at(p, r, frame), r.camera(cam),
-                                                     r.screen_filter))
-    worst = max(int(load(params, rig, jnp.int32(c))) for c in cameras)
+    worst = max(int(_tile_load(params, _one_view(rig, frame, int(c)))) for c in cameras)
     return int(128 * math.ceil(1.25 * worst / 128))
+
+
+def _one_view(rig: Rig, frame: int, cam: int) -> Rig:
+    """The rig holding only frame `frame` and camera `cam`, its capacity unset: `_tile_load`
+    compiles once for rigs of every length, camera count and capacity (the fit's, its unseen
+    views', the edit's)."""
+    return dataclasses.replace(rig, vertices=rig.vertices[frame:frame + 1],
+                               intrinsics=rig.intrinsics[cam:cam + 1], w2c=rig.w2c[cam:cam + 1],
+                               tile_capacity=1)
+
+
+@jax.jit
+def _tile_load(params: dict, rig: Rig) -> jax.Array:
+    return splat.tile_load(gaussians_at(params, rig, 0), rig.camera(0), rig.screen_filter)
 
 
 @functools.lru_cache(maxsize=None)

@@ -26,7 +26,6 @@ import json
 import os
 import sys
 
-import jax
 import numpy as np
 
 from gae_jax.model import avatar, flame, head
@@ -176,10 +175,8 @@ def _face_unit_sequences(t, n, seq, expr_of) -> list:
 
 def shaded_colors(model: flame.FlameModel, albedo: np.ndarray, shape: np.ndarray) -> np.ndarray:
     """(V, 3) albedo x Lambert shading of the identity's neutral mesh, baked in head space."""
-    import jax.numpy as jnp
-
     params = flame.zero_params(model)
-    params = dataclasses.replace(params, shape=jnp.asarray(shape, jnp.float32))
+    params = dataclasses.replace(params, shape=np.asarray(shape, np.float32))
     normals = avatar.vertex_normals(np.asarray(flame.lbs(model, params), np.float64),
                                     model.faces)
     light = LIGHT_DIRECTION / np.linalg.norm(LIGHT_DIRECTION)
@@ -206,9 +203,6 @@ def identity_albedo(model: flame.FlameModel, assets: head.HeadAssets,
         else:
             albedo[np.all(np.isclose(albedo, default, atol=1e-6), axis=1)] = colour
     return albedo
-
-
-_posed = jax.jit(flame.lbs)  # (one program per head; eager LBS took 30 ms a frame)
 
 
 def rig_cameras(intrinsics, w2c, size: int) -> list:
@@ -239,7 +233,7 @@ def render_views(model, face_regions, vertex_colors, shape, sequence: Sequence, 
                  rays: list | None = None, shader=None) -> list:
     """`render_frame`'s ray casts, one `raycast.RaycastImage` per camera (with each colour
     ray's region label, `samples`)."""
-    verts = np.asarray(_posed(model, sequence.params(shape, frame)))
+    verts = np.asarray(flame.lbs(model, sequence.params(shape, frame)))
     return raycast_views(verts, np.asarray(model.faces), vertex_colors, face_regions,
                          rig_cameras(intrinsics, w2c, size), background, supersample, rays=rays,
                          shader=shader)

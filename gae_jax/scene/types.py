@@ -45,14 +45,15 @@ class Sequence:
 
     def params(self, shape: np.ndarray, frame: int, static_offset=None) -> flame.FlameParams:
         """FlameParams of one frame with the given identity shape coefficients and optional
-        (V, 3) static offset."""
-        f = jnp.float32
+        (V, 3) static offset, as float32 host arrays (mixing frames on the host compiles
+        nothing)."""
+        f = np.float32
         return flame.FlameParams(
-            shape=jnp.asarray(shape, f), expr=jnp.asarray(self.expr[frame], f),
-            rotation=jnp.asarray(self.rotation[frame], f), neck=jnp.asarray(self.neck[frame], f),
-            jaw=jnp.asarray(self.jaw[frame], f), eyes=jnp.asarray(self.eyes[frame], f),
-            translation=jnp.asarray(self.translation[frame], f),
-            static_offset=None if static_offset is None else jnp.asarray(static_offset, f))
+            shape=np.asarray(shape, f), expr=np.asarray(self.expr[frame], f),
+            rotation=np.asarray(self.rotation[frame], f), neck=np.asarray(self.neck[frame], f),
+            jaw=np.asarray(self.jaw[frame], f), eyes=np.asarray(self.eyes[frame], f),
+            translation=np.asarray(self.translation[frame], f),
+            static_offset=None if static_offset is None else np.asarray(static_offset, f))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,8 +139,7 @@ def frame_params(scene: Scene, name: str, frame: int, identity: str = "A") -> fl
 
 def posed_vertices(scene: Scene, frames, identity: str = "A") -> np.ndarray:
     """(T, V, 3) mesh vertices of an identity's shape under the given (sequence, frame) motions."""
-    lbs = jax.jit(flame.lbs)
-    return np.stack([np.asarray(lbs(scene.model, frame_params(scene, n, t, identity)))
+    return np.stack([np.asarray(flame.lbs(scene.model, frame_params(scene, n, t, identity)))
                      for n, t in frames])
 
 
@@ -262,7 +262,7 @@ def stacked_params(scene: Scene, names, identity: str = "A") -> flame.FlameParam
     """FlameParams with a leading frame axis over all frames of the named sequences."""
     frames = [frame_params(scene, n, t, identity) for n in names
               for t in range(scene.sequences[n].num_frames)]
-    return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
+    return jax.tree_util.tree_map(lambda *x: np.stack(x), *frames)
 
 
 def interpolated_vertices(scene: Scene, name: str, per_frame: int,
@@ -271,12 +271,11 @@ def interpolated_vertices(scene: Scene, name: str, per_frame: int,
     consecutive frames, FLAME parameters interpolated linearly (a smooth drive for videos)."""
     seq = scene.sequences[name]
     times = np.linspace(0, seq.num_frames - 1, (seq.num_frames - 1) * per_frame + 1)
-    lbs = jax.jit(flame.lbs)
     out = []
     for x in times:
         lo = int(np.floor(x))
-        hi, w = min(lo + 1, seq.num_frames - 1), x - lo
+        hi, w = min(lo + 1, seq.num_frames - 1), float(x - lo)
         a, b = frame_params(scene, name, lo, identity), frame_params(scene, name, hi, identity)
         mixed = jax.tree_util.tree_map(lambda p, q: (1 - w) * p + w * q, a, b)
-        out.append(np.asarray(lbs(scene.model, mixed)))
+        out.append(np.asarray(flame.lbs(scene.model, mixed)))
     return np.stack(out)

@@ -77,7 +77,6 @@ def unseen_views(scene: Scene, count: int, seed: int, reach: float = 1.25) -> Un
     rng = np.random.default_rng(seed)
     frames = training_frames(scene)
     cams = np.asarray(scene.train_cameras)
-    lbs = jax.jit(flame.lbs)
     faces = np.asarray(scene.model.faces)
     vertices, intrinsics, w2cs = [], [], []
     for _ in range(count):
@@ -87,7 +86,7 @@ def unseen_views(scene: Scene, count: int, seed: int, reach: float = 1.25) -> Un
                                    scene.w2c[cb], rng.uniform())
         params = pose_between(frame_params(scene, *frames[fa]), frame_params(scene, *frames[fb]),
                               rng.uniform(), rng.uniform(1.0, reach))
-        vertices.append(np.asarray(lbs(scene.model, params)))
+        vertices.append(np.asarray(flame.lbs(scene.model, params)))
         intrinsics.append(intr)
         w2cs.append(w2c)
 

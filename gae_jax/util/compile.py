@@ -45,8 +45,9 @@ def fast_jit(fun=None, **jit_kwargs):
     return jax.jit(fun, compiler_options=options or None, **jit_kwargs)
 
 
-# Programs that compile faster than this are not worth a disk round trip.
-CACHE_MIN_COMPILE_SECONDS = 0.5
+# Programs that compile faster than this are not worth a disk round trip (loading one takes
+# ~20 ms; LBS, the posing of the Gaussians and LPIPS compile in 0.3-0.45 s each).
+CACHE_MIN_COMPILE_SECONDS = 0.1
 
 
 def use_persistent_cache(folder: str | None) -> None:
