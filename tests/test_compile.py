@@ -72,6 +72,7 @@ def test_a_second_run_loads_its_programs_from_the_compilation_cache(tmp_path):
 
 def test_every_entry_point_prepares_its_process(monkeypatch, tmp_path):
     from gae_jax import cli, evaluate, reconstruct, train, view
+    from gae_jax.batch import __main__ as batch
 
     calls = []
 
@@ -80,12 +81,14 @@ def test_every_entry_point_prepares_its_process(monkeypatch, tmp_path):
         raise SystemExit(0)  # stop before any work
 
     monkeypatch.setattr(cli, "prepare_process", record)
-    for entry in (train, reconstruct, evaluate, view, __import__("gae_jax.demo").demo):
+    entries = (train, reconstruct, evaluate, view, batch, __import__("gae_jax.demo").demo)
+    for entry in entries:
         argv = ["--compile-cache", str(tmp_path)] + {evaluate: ["x"], reconstruct: [
-            "--out", str(tmp_path / "out")]}.get(entry, [])
+            "--out", str(tmp_path / "out")], batch: ["jobs.toml", "--out", str(tmp_path / "out")]
+        }.get(entry, [])
         with pytest.raises(SystemExit):
             entry.main(argv)
-    assert calls == [str(tmp_path)] * 5
+    assert calls == [str(tmp_path)] * len(entries)
 
 
 def test_the_compilation_cache_flag_and_environment_choose_the_folder(monkeypatch, tmp_path):
