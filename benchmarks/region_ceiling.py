@@ -123,7 +123,7 @@ def markdown(results: dict, prompts) -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--weights", type=float, nargs="+", default=[0.0, 0.05, 0.1, 0.2])
+    p.add_argument("--weights", type=float, nargs="*", default=[0.0, 0.05, 0.1, 0.2])
     p.add_argument("--centre", type=float, nargs="*", default=[0.1],
                    help="weights also fitted on each pixel's centre label alone")
     p.add_argument("--unseen", type=float, nargs="*", default=[0.1, 0.3, 1.0],

@@ -39,7 +39,9 @@ HELP = dict(
     "rendered regions against the tracked mesh's labels projected into the training views "
     "(0: colour alone)", label_samples="the region loss reads the labels of several rays "
     "in each pixel, so that a pixel an outline crosses asks for the regions' mix (false: "
-    "the centre ray's label alone)", unseen_weight="weight of the region loss in views no "
+    "the centre ray's label alone)", region_outline_weight="how many times the pixels near "
+    "an outline count in the training views' region loss (1: as every pixel)",
+    unseen_outline_weight="the same in the views no camera took", unseen_weight="weight of the region loss in views no "
     "camera took: cameras between two training cameras, poses between two training frames "
     "with the expression up to 1.25x as strong, labelled by the tracked mesh alone (0: off)",
     unseen_views="how many such views are drawn once before the fit",

@@ -128,6 +128,40 @@ def test_region_loss_asks_an_edge_pixel_for_the_mix_its_samples_say(x64):
                                         codes)) > 0.5
 
 
+def test_region_loss_weighs_the_pixels_near_an_outline_as_asked(x64):
+    """`outline_pixels` against a loop over each pixel's 3 x 3 neighbourhood (clipped at the
+    image's edge) of rays; the weighted loss against the same loop with those pixels counted
+    `outline_weight` times, and its gradient against finite differences."""
+    rng = np.random.default_rng(2)
+    codes = losses.region_codes(4)
+    samples = np.zeros((9, 8, 4), int)
+    samples[0] = np.repeat(rng.integers(-1, 4, (8, 1)), 4, axis=-1)
+    samples[2:7, 2:7] = 2  # a block of another region: its inside is no outline
+    samples[5, 2, 1] = 0  # a pixel an outline crosses
+    samples[8, 0] = [0, -2, 0, 0]  # one unknown ray: the pixel is left out
+    weights = rng.uniform(0, 0.8, (9, 8, codes.shape[1]))
+    outline = np.zeros((9, 8), bool)
+    for y in range(9):
+        for x in range(8):
+            near = samples[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2]
+            outline[y, x] = near.min() != near.max()
+    got = np.asarray(losses.outline_pixels(jnp.asarray(samples, jnp.int8)))
+    np.testing.assert_array_equal(got, outline)
+    assert outline[5, 1:4].all() and not outline[3:6, 4:6].any() and not outline[8, 3:].any()
+    expected = 0.0
+    for y in range(9):
+        for x in range(8):
+            if (samples[y, x] < -1).any():
+                continue
+            target = np.mean([codes[s + 1] for s in samples[y, x]], axis=0)
+            expected += (5.0 if outline[y, x] else 1.0) * np.abs(weights[y, x] - target).sum()
+    value = float(losses.region_loss(jnp.asarray(weights), jnp.asarray(samples), codes, 5.0))
+    assert value == pytest.approx(expected / 72)
+    assert value > float(losses.region_loss(jnp.asarray(weights), jnp.asarray(samples), codes))
+    check_grads(lambda w: losses.region_loss(w, jnp.asarray(samples), codes, 5.0),
+                (jnp.asarray(weights),), order=1, modes=("rev",))
+
+
 def test_change_coherence_pulls_each_member_to_the_colour_of_its_regions_mean_change(x64):
     """Value against a loop over the members: the squared distance of each member's colour from
     (c0 + f) exp(mean change of its group's members) - f; gradient: finite differences with

@@ -23,7 +23,11 @@ class ReconstructConfig:
     view: a region's Gaussians then end where the region does in views they were not fitted
     in, so that recolouring them does not paint their neighbours there. `unseen_from`: the
     fraction of the iterations after which those views join (0: from the first step; the steps
-    before it render the training view alone).
+    before it render the training view alone). `region_outline_weight` and
+    `unseen_outline_weight`: how many times the pixels near an outline count in the region loss
+    of the training views and of those views (`losses.outline_pixels`; 1: as every other pixel,
+    the default: weighed more, the seams narrow and the thin regions' reconstruction suffers,
+    docs/editing.md).
 
     The Gaussian budget: `per_face` at the start, `max_gaussians` at most (0: no cap). Resolution
     is the scene's. `tile_capacity` 0 sizes the per-tile lists from the initial avatar.
@@ -44,8 +48,10 @@ class ReconstructConfig:
     position_weight: float = 0.01
     scale_weight: float = 1.0
     region_weight: float = 0.1
+    region_outline_weight: float = 1.0
     label_samples: bool = True
     unseen_weight: float = 0.1
+    unseen_outline_weight: float = 1.0
     unseen_views: int = 64
     unseen_from: float = 0.0
     sh_degree: Optional[int] = None
@@ -73,6 +79,9 @@ class ReconstructConfig:
             raise ValueError(f"sh_degree must be None or 0..3, got {self.sh_degree}")
         if min(self.densify_every, self.checkpoint_every, self.max_gaussians) < 0:
             raise ValueError("densify_every, checkpoint_every and max_gaussians must be >= 0")
+        if not (self.region_outline_weight > 0 and self.unseen_outline_weight > 0):
+            raise ValueError(f"region_outline_weight and unseen_outline_weight must be > 0, got "
+                             f"{self.region_outline_weight} and {self.unseen_outline_weight}")
         if not (self.unseen_weight >= 0 and self.unseen_views >= 1):
             raise ValueError(f"unseen_weight must be >= 0 and unseen_views >= 1, got "
                              f"{self.unseen_weight} and {self.unseen_views}")
@@ -102,7 +111,9 @@ class FitStepConfig:
     position_weight: float
     scale_weight: float
     region_weight: float
+    region_outline_weight: float
     unseen_weight: float
+    unseen_outline_weight: float
     sh_degree: Optional[int]
     sh_every: int
     tiles_per_chunk: int

@@ -108,13 +108,15 @@ def make_fit_step(config: FitStepConfig):
                + config.scale_weight * losses.scale_regulariser(params["log_scales"], visible))
         region = jnp.float32(0.0)
         if config.region_weight:
-            region = losses.region_loss(out.image[..., 3:], labels[cam, frame], codes)
+            region = losses.region_loss(out.image[..., 3:], labels[cam, frame], codes,
+                                         config.region_outline_weight)
         unseen_region = jnp.float32(0.0)
         if unseen is not None:
             unseen_rig, unseen_labels = unseen
             seen = render_bound(params, unseen_rig, view, view, extra_channels=extra,
                                 tiles_per_chunk=config.tiles_per_chunk)
-            unseen_region = losses.region_loss(seen.image[..., 3:], unseen_labels[view], codes)
+            unseen_region = losses.region_loss(seen.image[..., 3:], unseen_labels[view], codes,
+                                                config.unseen_outline_weight)
         return (photo + reg + config.region_weight * region
                 + config.unseen_weight * unseen_region), (out.stats.contributed, dict(
             photometric=photo, region=region, unseen_region=unseen_region,

@@ -109,7 +109,8 @@ def region_codes(num_regions: int) -> np.ndarray:
     return codes
 
 
-def region_loss(weights: jax.Array, samples: jax.Array, codes: jax.Array) -> jax.Array:
+def region_loss(weights: jax.Array, samples: jax.Array, codes: jax.Array,
+                outline_weight: float = 1.0) -> jax.Array:
     """Mean over pixels of sum_b |W_b - target_b|: (H, W, B) composited region codes (each
     Gaussian's `region_codes` row as extra channels) against the mean code of each pixel's
     (H, W, S) int label samples (the regions its S rays project to; -1: background, coded all
@@ -117,13 +118,32 @@ def region_loss(weights: jax.Array, samples: jax.Array, codes: jax.Array) -> jax
     sample, zero exactly where each pixel is covered by its own region's Gaussians alone, at
     full opacity; with several, a pixel a region's outline crosses asks for the regions'
     mix in the shares its rays say (as the antialiased image does), not for the region at
-    its centre."""
+    its centre. `outline_weight` weighs the pixels near an outline (`outline_pixels`) that
+    many times: the few pixels where one region's Gaussians reach into another's."""
     samples = samples.astype(jnp.int32)
     table = jnp.asarray(codes, weights.dtype)
     target = jnp.mean(table[jnp.maximum(samples + 1, 0)], axis=-2)
     per_pixel = jnp.sum(jnp.abs(weights - target), axis=-1)
     known = jnp.all(samples >= -1, axis=-1)
+    if outline_weight != 1.0:
+        per_pixel = per_pixel * jnp.where(outline_pixels(samples), outline_weight, 1.0)
     return jnp.mean(jnp.where(known, per_pixel, 0.0))
+
+
+def outline_pixels(samples: jax.Array) -> jax.Array:
+    """(H, W) bool: the pixels of (H, W, S) int label samples whose rays, or the rays of a
+    pixel beside them (3 x 3 neighbourhood), see more than one label: a region's outline and
+    the pixel on either side of it."""
+    low = jnp.min(samples, axis=-1)
+    high = jnp.max(samples, axis=-1)
+    pad_low = jnp.pad(low, 1, mode="edge")
+    pad_high = jnp.pad(high, 1, mode="edge")
+    h, w = low.shape
+    for dy in range(3):
+        for dx in range(3):
+            low = jnp.minimum(low, pad_low[dy:dy + h, dx:dx + w])
+            high = jnp.maximum(high, pad_high[dy:dy + h, dx:dx + w])
+    return low != high
 
 
 # Added to a colour before its log (`change_coherence`): a change is a ratio for bright colours
