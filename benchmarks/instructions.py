@@ -3,7 +3,8 @@ on the skin and the hair, two styles; the default loop, the oracle loop, the reg
 ceiling and the untouched avatar side by side.
 
     python benchmarks/instructions.py [--size 128] [--seeds 0 1 2] [--only PROMPT ...]
-                                      [--extra] [--out benchmarks/results/instructions]
+                                      [--extra] [--fit-seed 0]
+                                      [--out benchmarks/results/instructions]
 
 Per colour instruction (MakeHuman head, CLI defaults, 100 iterations):
   * `default`: the CLI's edit at seeds 0-2 (the built-in semantic editor at its default noise);
@@ -16,8 +17,10 @@ Each is scored as the train job scores (`score.evaluate_avatars`): PSNR of the e
 of every preserved group per protocol against the ideal, the drift (ours against the untouched
 avatar outside the dilated edit). Styles have no ideal: their rows give flicker and the
 background's drift. `--extra` runs instructions no issue or study chose (the held-out check of
-what generalises). Writes `<out>.json` (every record; a rerun skips what is recorded with the
-same settings), `<out>.md`, `<out>.png` (default / oracle / ceiling / untouched per instruction)
+what generalises); `--fit-seed N` edits a reconstruction fitted with seed N instead of the
+default job's 0 (its edited avatars kept apart): how much of a result is that one fit's.
+Writes `<out>.json` (every record; a rerun skips what is recorded with the same settings),
+`<out>.md`, `<out>.png` (default / oracle / ceiling / untouched per instruction)
 and `<out>_errors.png` (error maps of the instructions that miss a target: ideal, ours, |ours -
 ideal| for the default and the oracle at the worst novel-view frame).
 """
@@ -226,11 +229,14 @@ def chart(results: dict, prompts, seeds, path: str) -> None:
     plt.close(fig)
 
 
-def avatar_path(name: str, size: int) -> str:
-    return os.path.join(cache_root(), "instruction_suite", str(size), slug(name) + ".ply")
+def avatar_path(name: str, size: int, fit_seed: int = 0) -> str:
+    """Where the suite keeps an edited avatar of the reconstruction fitted with `fit_seed`."""
+    folder = str(size) if fit_seed == 0 else f"{size}-fit{fit_seed}"
+    return os.path.join(cache_root(), "instruction_suite", folder, slug(name) + ".ply")
 
 
-def error_maps(scene, original, misses: list, evalsets: dict, path: str, size: int) -> None:
+def error_maps(scene, original, misses: list, evalsets: dict, path: str, size: int,
+               fit_seed: int = 0) -> None:
     """One row per missed instruction, cropped around the edited region of the frame (of any
     protocol) where the default's error there is largest: ideal (the truth's region outlined in
     yellow), default, |default - ideal|, oracle, |oracle - ideal| (errors x4, clipped)."""
@@ -240,7 +246,8 @@ def error_maps(scene, original, misses: list, evalsets: dict, path: str, size: i
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = [(p, why) for p, why in misses if os.path.isfile(avatar_path(f"default/{p}", size))]
+    rows = [(p, why) for p, why in misses
+            if os.path.isfile(avatar_path(f"default/{p}", size, fit_seed))]
     if not rows:
         return
     capacity = rigs.put_rig(scene, original,
@@ -255,7 +262,7 @@ def error_maps(scene, original, misses: list, evalsets: dict, path: str, size: i
             ideal = frames.truth.astype(np.float32) / 255.0
             pictures = {}
             for who in ("default", "oracle"):
-                file = avatar_path(f"{who}/{prompt}", size)
+                file = avatar_path(f"{who}/{prompt}", size, fit_seed)
                 if os.path.isfile(file):
                     avatar = avatar_io.load_bound_avatar(file, scene.face_regions)
                     pictures[who] = np.asarray(score.render_frames(render, avatar, evalset,
@@ -312,6 +319,9 @@ def main(argv=None) -> int:
     p.add_argument("--only", nargs="+", default=None, help="prompts to run (default: all)")
     p.add_argument("--extra", action="store_true", help="also the instructions of `EXTRA`")
     p.add_argument("--no-oracle", action="store_true")
+    p.add_argument("--fit-seed", type=int, default=0,
+                   help="the reconstruction's seed (the default job's is 0): how much of a "
+                        "result is that one fit's")
     p.add_argument("--out", default="benchmarks/results/instructions")
     args = p.parse_args(argv)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
@@ -326,13 +336,15 @@ def main(argv=None) -> int:
         prompts = list(dict.fromkeys(prompts))
     bench = Bench(args.out + ".json")
     scene = synthetic.make_synthetic_scene(size=args.size, progress=True, head_kind="makehuman")
-    original = original_avatar(scene, preset("fast").reconstruct_iterations, progress=True)
+    original = original_avatar(scene, preset("fast").reconstruct_iterations, progress=True,
+                               seed=args.fit_seed)
     evalsets = {}
 
     def keep(name):
         def save(avatar):
-            os.makedirs(os.path.dirname(avatar_path(name, args.size)), exist_ok=True)
-            avatar_io.save_avatar_ply(avatar, avatar_path(name, args.size))
+            path = avatar_path(name, args.size, args.fit_seed)
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            avatar_io.save_avatar_ply(avatar, path)
         return save
 
     for prompt in prompts:
@@ -365,10 +377,12 @@ def main(argv=None) -> int:
     command = "python benchmarks/instructions.py" + (
         f" --size {args.size}" if args.size != 128 else "") + (
         f" --seeds {' '.join(map(str, args.seeds))}" if args.seeds != [0, 1, 2] else "") + (
-        " --extra" if args.extra else "") + (
+        " --extra" if args.extra else "") + (" --no-oracle" if args.no_oracle else "") + (
+        f" --fit-seed {args.fit_seed}" if args.fit_seed else "") + (
         f" --out {args.out}" if args.out != p.get_default("out") else "")
+    fitted = f", the reconstruction fitted with seed {args.fit_seed}" if args.fit_seed else ""
     report = [f"# The instruction suite ({args.size} px MakeHuman head, {args.iterations} "
-              "iterations, CLI defaults)", "",
+              f"iterations, CLI defaults{fitted})", "",
               f"Command: `{command}`. PSNR dB of the edited region against the ideal edit, "
               "mean over the three protocols; the default loop over seeds "
               f"{', '.join(map(str, args.seeds))} (mean and range); worst preserved loss: the "
@@ -385,7 +399,8 @@ def main(argv=None) -> int:
     for prompt, _ in misses:
         if prompt not in evalsets:
             evalsets[prompt] = bench.evalset(scene, prompt)
-    error_maps(scene, original, misses, evalsets, args.out + "_errors.png", args.size)
+    error_maps(scene, original, misses, evalsets, args.out + "_errors.png", args.size,
+               args.fit_seed)
     return 0
 
 
