@@ -160,6 +160,11 @@ def test_region_loss_weighs_the_pixels_near_an_outline_as_asked(x64):
     assert value > float(losses.region_loss(jnp.asarray(weights), jnp.asarray(samples), codes))
     check_grads(lambda w: losses.region_loss(w, jnp.asarray(samples), codes, 5.0),
                 (jnp.asarray(weights),), order=1, modes=("rev",))
+    from gae_jax.fit.config import ReconstructConfig
+
+    for bad in (dict(region_outline_weight=0.0), dict(unseen_outline_weight=-1.0)):
+        with pytest.raises(ValueError, match="outline_weight"):
+            ReconstructConfig(**bad)
 
 
 def test_change_coherence_pulls_each_member_to_the_colour_of_its_regions_mean_change(x64):

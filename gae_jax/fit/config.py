@@ -26,8 +26,8 @@ class ReconstructConfig:
     before it render the training view alone). `region_outline_weight` and
     `unseen_outline_weight`: how many times the pixels near an outline count in the region loss
     of the training views and of those views (`losses.outline_pixels`; 1: as every other pixel,
-    the default: weighed more, the seams narrow and the thin regions' reconstruction suffers,
-    docs/editing.md).
+    the default: weighed more, the thin regions' reconstruction suffers and the seams move no
+    more than refitting with another seed moves them, docs/editing.md).
 
     The Gaussian budget: `per_face` at the start, `max_gaussians` at most (0: no cap). Resolution
     is the scene's. `tile_capacity` 0 sizes the per-tile lists from the initial avatar.
