@@ -1,9 +1,10 @@
 """Speed against accuracy of the default edit: what costs time, what it buys.
 
-    python benchmarks/pareto.py [--out benchmarks/results/pareto]
+    python benchmarks/pareto.py [--head makehuman] [--out benchmarks/results/pareto]
 
-Sweeps, one knob at a time from the default (`fast`: 128 px, 100 iterations, every Gaussian of
-the reconstruction, tile capacity sized from the busiest tile):
+Sweeps, one knob at a time from the default (`fast` on the `--head` scene, by default the CLI's
+MakeHuman head: 128 px, 100 iterations, every Gaussian of the reconstruction, tile capacity
+sized from the busiest tile):
   * Gaussians: keep the most opaque 75 / 50 / 25 % of the reconstructed avatar;
   * resolution: edit at 64 / 96 px (own scene and reconstruction), evaluated at 128 px;
   * tile capacity: 0.5x / 0.75x of the busiest tile (overflowing tiles drop Gaussians);
@@ -27,7 +28,7 @@ import numpy as np
 from gae_jax.edit import edit
 from gae_jax.edit.config import preset
 from gae_jax.evaluation import score
-from gae_jax.model import avatar as av
+from gae_jax.model import avatar as av, head
 from gae_jax.run.original import original_avatar
 from gae_jax.scene import rig as rigs, synthetic
 from gae_jax.scene.types import posed_vertices, training_frames
@@ -51,13 +52,14 @@ def keep_most_opaque(avatar: av.Avatar, fraction: float, num_faces: int) -> av.A
     return av.prune(avatar, remove, num_faces, keep_every_face=False)
 
 
-def run_variant(bench: Bench, name: str, knobs: dict, base, scene128):
+def run_variant(bench: Bench, name: str, knobs: dict, base, scene128, head_kind: str):
     config = dataclasses.replace(base, iterations=knobs.get("iterations", base.iterations))
     recorded = bench.results.get(name)
     if recorded is not None and recorded.get("knobs") == knobs and same_settings(recorded, config):
         return recorded
     size = knobs.get("size", 128)
-    scene = scene128 if size == 128 else synthetic.make_synthetic_scene(size=size, progress=False)
+    scene = scene128 if size == 128 else synthetic.make_synthetic_scene(size=size, progress=False,
+                                                                        head_kind=head_kind)
     original = original_avatar(scene, base.reconstruct_iterations, progress=False)
     if "keep" in knobs:
         original = keep_most_opaque(original, knobs["keep"], scene.model.faces.shape[0])
@@ -134,15 +136,16 @@ def main(argv=None) -> int:
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     p.add_argument("--out", default="benchmarks/results/pareto")
     p.add_argument("--iterations", type=int, default=100, help="edit iterations of the default")
+    p.add_argument("--head", choices=head.HEAD_KINDS, default=head.DEFAULT_KIND)
     args = p.parse_args(argv)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     bench = Bench(args.out + ".json")
     base = preset("fast", checkpoint_every=0, iterations=args.iterations)
-    scene128 = synthetic.make_synthetic_scene(size=128, progress=False)
+    scene128 = synthetic.make_synthetic_scene(size=128, progress=False, head_kind=args.head)
     for name in args.variants:
-        run_variant(bench, name, VARIANTS[name], base, scene128)
+        run_variant(bench, name, VARIANTS[name], base, scene128, args.head)
     fronts = plot(bench.results, args.out + ".png")
-    bench.save(fronts=fronts)
+    bench.save(fronts=fronts, head=args.head)
     for name, r in bench.results.items():
         print(f"{name:16s} {r['edit_seconds']:7.1f} s  lips "
               f"{mean_over_protocols(r, 'psnr', 'edited')}  teeth "

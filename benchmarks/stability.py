@@ -1,9 +1,10 @@
 """Where the edit breaks: sweeps of beta, editor noise and adversarial weight, and the edited
 avatar driven to extreme expressions, poses and grazing cameras.
 
-    python benchmarks/stability.py [--out benchmarks/results/stability]
+    python benchmarks/stability.py [--head makehuman] [--out benchmarks/results/stability]
 
-Sweeps ('turn the lips blue', `fast` settings except the knob):
+Sweeps ('turn the lips blue' on the `--head` scene at 128 px, by default the CLI's MakeHuman
+head; `fast` settings except the knob):
   * beta in 0 / 2 / 6 / 12 / 20 with WABE on the gradient (`wabe_grad`), and 2 / 6 / 20 with the
     paper's forward WABE;
   * editor noise 0 / 0.3 / 0.6 / 1.0;
@@ -180,11 +181,12 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="benchmarks/results/stability")
     p.add_argument("--sweeps", nargs="+", default=list(SWEEPS), choices=list(SWEEPS))
     p.add_argument("--iterations", type=int, default=100, help="edit iterations of the default")
+    p.add_argument("--head", choices=head.HEAD_KINDS, default=head.DEFAULT_KIND)
     args = p.parse_args(argv)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     bench = Bench(args.out + ".json")
     base = preset("fast", checkpoint_every=0, iterations=args.iterations)
-    scene = synthetic.make_synthetic_scene(size=128, progress=False)
+    scene = synthetic.make_synthetic_scene(size=128, progress=False, head_kind=args.head)
     original = original_avatar(scene, base.reconstruct_iterations, progress=False)
     default_ply = args.out + "-default-edit.ply"
 
@@ -203,7 +205,7 @@ def main(argv=None) -> int:
         keep_default(edit.edit_avatar(session)[0])
     rows = extremes(base, scene, original,
                     avatar_io.load_bound_avatar(default_ply, scene.face_regions))
-    bench.save(extremes=rows)
+    bench.save(extremes=rows, head=args.head)
     plot(bench.results, args.out + ".png")
     write_report(args.out + ".md", markdown(bench.results, rows) + "\n")
     return 0
