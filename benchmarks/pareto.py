@@ -101,6 +101,27 @@ def pareto_front(times, quality):
     return sorted(front, key=lambda i: times[i])
 
 
+def label_groups(xs, ys, names, near_x: float = 0.15, near_y: float = 0.1) -> list:
+    """[(x, y, "name\\nname")]: one label, a line per point, for each group of points within
+    `near_x` / `near_y` of the axes' spans of the group's first point (the labels of points
+    that close would print over each other); a group's lines run from its highest point down,
+    and the label sits at the highest."""
+    span = [max(max(v) - min(v), 1e-9) for v in (xs, ys)]
+    groups: list = []
+    for x, y, name in zip(xs, ys, names):
+        for g in groups:
+            if abs(x - g[0][0]) < near_x * span[0] and abs(y - g[0][1]) < near_y * span[1]:
+                g.append((x, y, name))
+                break
+        else:
+            groups.append([(x, y, name)])
+    out = []
+    for g in groups:
+        g = sorted(g, key=lambda p: (-p[1], p[0]))
+        out.append((g[0][0], g[0][1], "\n".join(p[2] for p in g)))
+    return out
+
+
 def plot(results: dict, path: str) -> dict:
     import matplotlib
 
@@ -119,8 +140,9 @@ def plot(results: dict, path: str) -> dict:
         ax.scatter(times, q, c=["tab:red" if n == "default" else "tab:blue" for n in names])
         ax.plot([times[i] for i in front], [q[i] for i in front], "k--", lw=1,
                 label="Pareto front")
-        for n, t, v in zip(names, times, q):
-            ax.annotate(n, (t, v), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        for t, v, text in label_groups(times, q, names):
+            ax.annotate(text, (t, v), fontsize=7, xytext=(4, 3), textcoords="offset points",
+                        va="top" if "\n" in text else "bottom")
         ax.set_xlabel("edit wall time, s (compiled, 2-core CPU)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
