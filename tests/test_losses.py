@@ -99,6 +99,22 @@ def test_region_loss_is_the_per_pixel_l1_to_the_labels_codes(x64):
                                     codes)) == 0.0
 
 
+def _region_loss_by_pixel(weights, samples, codes, pixel_weight=None) -> float:
+    """The region loss as a loop over pixels: each pixel's L1 to the mean code of its rays,
+    times its `pixel_weight` (H, W; default 1), summed over the pixels without an unknown ray
+    (-2) and divided by all H x W pixels."""
+    h, w = samples.shape[:2]
+    pixel_weight = np.ones((h, w)) if pixel_weight is None else pixel_weight
+    total = 0.0
+    for y in range(h):
+        for x in range(w):
+            if (samples[y, x] < -1).any():
+                continue
+            target = np.mean([codes[s + 1] for s in samples[y, x]], axis=0)
+            total += pixel_weight[y, x] * np.abs(weights[y, x] - target).sum()
+    return total / (h * w)
+
+
 def test_region_loss_asks_an_edge_pixel_for_the_mix_its_samples_say(x64):
     """With several label samples per pixel the target is the mean of their codes: a pixel
     half lips, half skin is matched exactly by an even mix of the two codes and not by either
@@ -109,14 +125,7 @@ def test_region_loss_asks_an_edge_pixel_for_the_mix_its_samples_say(x64):
     samples[0, 0] = [0, 0, -2, 1]  # one unknown ray: the pixel is left out
     weights = rng.uniform(0, 0.8, (6, 5, codes.shape[1]))
     value = float(losses.region_loss(jnp.asarray(weights), jnp.asarray(samples), codes))
-    expected = 0.0
-    for y in range(6):
-        for x in range(5):
-            if (samples[y, x] < -1).any():
-                continue
-            target = np.mean([codes[s + 1] for s in samples[y, x]], axis=0)
-            expected += np.abs(weights[y, x] - target).sum()
-    assert value == pytest.approx(expected / 30)
+    assert value == pytest.approx(_region_loss_by_pixel(weights, samples, codes))
     check_grads(lambda w: losses.region_loss(w, jnp.asarray(samples), codes),
                 (jnp.asarray(weights),), order=1, modes=("rev",))
     half = np.array([[[0, 0, 1, 1]]])
@@ -148,15 +157,9 @@ def test_region_loss_weighs_the_pixels_near_an_outline_as_asked(x64):
     got = np.asarray(losses.outline_pixels(jnp.asarray(samples, jnp.int8)))
     np.testing.assert_array_equal(got, outline)
     assert outline[5, 1:4].all() and not outline[3:6, 4:6].any() and not outline[8, 3:].any()
-    expected = 0.0
-    for y in range(9):
-        for x in range(8):
-            if (samples[y, x] < -1).any():
-                continue
-            target = np.mean([codes[s + 1] for s in samples[y, x]], axis=0)
-            expected += (5.0 if outline[y, x] else 1.0) * np.abs(weights[y, x] - target).sum()
+    expected = _region_loss_by_pixel(weights, samples, codes, np.where(outline, 5.0, 1.0))
     value = float(losses.region_loss(jnp.asarray(weights), jnp.asarray(samples), codes, 5.0))
-    assert value == pytest.approx(expected / 72)
+    assert value == pytest.approx(expected)
     assert value > float(losses.region_loss(jnp.asarray(weights), jnp.asarray(samples), codes))
     check_grads(lambda w: losses.region_loss(w, jnp.asarray(samples), codes, 5.0),
                 (jnp.asarray(weights),), order=1, modes=("rev",))
